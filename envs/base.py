@@ -1,0 +1,82 @@
+"""The contract every cogail task implements (on top of brax's ``Env``).
+
+A task is a ``brax.envs.base.Env`` whose action is ``concat(a_H, a_R)`` and whose observation is the
+shared state ``s``. On top of brax's API a task exposes what the trainer, the demonstrators and the
+evaluation need:
+
+* ``human_action_size`` / ``robot_action_size`` -- the split of the action vector.
+* ``max_episode_steps`` -- the time limit; ``step`` sets ``done`` on success or at the limit.
+* ``init_size`` and ``reset_from(init)`` -- reset to a given initial condition (replay evaluation starts a
+  held-out demonstration's episode exactly where the demonstration started); ``reset(rng)`` samples an
+  ``init`` with ``sample_init`` and calls ``reset_from``.
+* ``strategy_names`` -- the paper's strategy labels; ids are 1..len(strategy_names), 0 means "none".
+* ``classify_strategy(metrics)`` -- label an executed episode from ``State.metrics`` at its last step
+  (jittable, returns an int32; 0 when the episode did not succeed or fits no strategy).
+* ``team_init(rng, mix) -> (team_state, strategy)`` and ``team_act(team_state, state, rng) ->
+  (team_state, action)`` -- the scripted human-human team, pure JAX, vmappable. ``mix`` is a vector of
+  strategy probabilities (len(strategy_names)).
+* ``render(state) -> np.ndarray`` -- an RGB frame (H, W, 3) uint8 of one (unbatched) state.
+
+``State.metrics`` holds at least ``success`` (float 0/1, sticky within an episode) and the task's
+strategy events. ``State.info`` holds at least ``t`` (int32 step counter).
+"""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import jax
+import jax.numpy as jnp
+from brax.envs.base import Env, State
+
+__all__ = ["CollabEnv", "State"]
+
+
+class CollabEnv(Env):
+    """Base class: brax ``Env`` plus the collaboration-task extras listed in the module docstring."""
+
+    name: str = ""
+    human_action_size: int = 0
+    robot_action_size: int = 0
+    max_episode_steps: int = 0
+    init_size: int = 0
+    strategy_names: Sequence[str] = ()
+    discriminator_loss: str = "lsgan"  # "bce" for fetchq, "lsgan" for the manipulation tasks
+
+    @property
+    def action_size(self) -> int:
+        return self.human_action_size + self.robot_action_size
+
+    @property
+    def backend(self) -> str:
+        return "jax"
+
+    @property
+    def num_strategies(self) -> int:
+        return len(self.strategy_names)
+
+    def sample_init(self, rng: jax.Array) -> jax.Array:
+        raise NotImplementedError
+
+    def reset(self, rng: jax.Array) -> State:
+        return self.reset_from(self.sample_init(rng))
+
+    def reset_from(self, init: jax.Array) -> State:
+        raise NotImplementedError
+
+    def classify_strategy(self, metrics: dict[str, jax.Array]) -> jax.Array:
+        raise NotImplementedError
+
+    def team_init(self, rng: jax.Array, mix: jax.Array) -> tuple[Any, jax.Array]:
+        raise NotImplementedError
+
+    def team_act(self, team_state: Any, state: State, rng: jax.Array) -> tuple[Any, jax.Array]:
+        raise NotImplementedError
+
+    def render(self, state: State):
+        raise NotImplementedError
+
+    def split_action(self, action: jax.Array) -> tuple[jax.Array, jax.Array]:
+        return action[..., : self.human_action_size], action[..., self.human_action_size :]
+
+    def uniform_mix(self) -> jax.Array:
+        return jnp.full((self.num_strategies,), 1.0 / self.num_strategies)

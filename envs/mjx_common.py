@@ -1,0 +1,389 @@
+"""Shared MJX parts of the manipulation tasks (HR-Handover, HR-SeqManip).
+
+Scene conventions
+-----------------
+* World frame: z up, table top is the plane z = 0. The "human" sits at -y and faces +y, the "robot"
+  sits at +y and faces -y. Seen from the human, *left* is -x and *right* is +x.
+* Each agent is a floating parallel gripper (no arm). Its body ``<name>`` hangs under a fixed base body
+  ``<name>_base`` (whose pose is the agent's *base frame*) through 3 slide joints (x, y, z of the base
+  frame) followed by 3 hinge joints (x, y, z, intrinsic: ``R = Rx(a) Ry(b) Rz(c)``), all about the tool
+  centre point (TCP, the body origin, between the finger pads). At zero angles the fingers point down
+  (-z) and close along the gripper's local x. Each joint has a ``position`` actuator; the gripper body
+  and the fingers have ``gravcomp="1"``. The two finger slide joints are coupled by a joint equality
+  and driven together by ONE position actuator on the fixed tendon ``<name>_grip`` (= the finger gap).
+  Actuator order per gripper: x, y, z, rx, ry, rz, grip (:data:`N_GRIPPER_ACT` = 7).
+* Collisions: every geom has contype = conaffinity = 0; only explicit ``<contact><pair>`` entries
+  collide (fingers/palm vs. objects, objects vs. table). Grippers are kept off the furniture by joint
+  limits, never by contacts. Grasp detection uses ``<contact>`` sensors (data="found") between each
+  finger pad and each graspable geom.
+* Physics: ``timestep`` 0.005 s, :data:`N_SUBSTEPS` = 4 substeps per env step (0.02 s) in a
+  ``lax.scan``; Newton solver with few iterations / line-search iterations; Euler integrator with
+  ``eulerdamp`` disabled (actuator damping is explicit; gains are chosen to be stable at 5 ms).
+
+Actions (per agent, 7 numbers in [-1, 1])
+-----------------------------------------
+``(dx, dy, dz, drx, dry, drz, g)``: the first six *move the position-actuator targets* of the gripper
+joints: ``POS_SCALE`` = 1 cm per unit per env step for translation (in the agent's base frame) and
+``ROT_SCALE`` = 1 degree per unit per env step for each of the three hinge angles (the paper's
+HR-Handover action space, no extra scaling). ``g`` is the absolute gripper command: -1 fully closed,
++1 fully open (paper convention); it sets the finger-gap target linearly in [0, ``MAX_GAP``]. Targets are
+clipped to the joint ranges, so an agent can never push its target outside its workspace.
+
+Observations helpers return the TCP pose in the agent's base frame (position + continuous 6D rotation:
+the first two columns of the rotation matrix, Zhou et al. 2019) and object positions relative to the
+TCP expressed in the base frame.
+
+Grasping
+--------
+The default is an honest *friction* grasp: the bar is squeezed by the two box finger pads (position
+actuator on the finger tendon, force limited), no welds. It is reliable in MJX with the settings
+below (measured: the HR-Handover scripted team succeeds in all of >= 1000 episodes), so no grasp assist
+is compiled in. :func:`is_grasping` is the grasp detector: both finger pads touch the object (contact
+sensors) *and* the gripper is commanded closed.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Sequence
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+__all__ = [
+    "N_GRIPPER_ACT", "N_SUBSTEPS", "TIMESTEP", "POS_SCALE", "ROT_SCALE", "MAX_GAP",
+    "GripperSpec", "gripper_body_xml", "gripper_actuator_xml", "gripper_tendon_xml",
+    "gripper_equality_xml", "gripper_pairs_xml", "gripper_sensors_xml", "free_box_xml",
+    "pair_xml", "table_xml", "scene_xml", "build",
+    "Gripper", "apply_gripper_action", "physics_step", "rot6d", "tcp_pos", "tcp_mat",
+    "tcp_pose_base", "to_base", "finger_gap", "touching", "is_grasping", "body_pos",
+    "body_mat", "make_data", "quat_to_mat", "yaw_of", "wrap_angle",
+]
+
+N_GRIPPER_ACT = 7
+N_SUBSTEPS = 4
+TIMESTEP = 0.005
+POS_SCALE = 0.01                 # metres per action unit per env step
+ROT_SCALE = float(np.deg2rad(1.0))  # radians per action unit per env step
+MAX_GAP = 0.08                   # finger gap when fully open (m)
+FINGER_HALF = (0.006, 0.012, 0.025)  # finger pad box half sizes (x: thickness, y: width, z: length)
+FINGER_ZC = 0.01                 # finger pad centre height above the TCP (tips 1.5 cm below the TCP)
+PALM_HALF = (0.058, 0.016, 0.01)
+PALM_ZC = FINGER_ZC + FINGER_HALF[2] + PALM_HALF[2]
+
+
+def _fmt(v: Sequence[float]) -> str:
+    return " ".join(f"{float(x):.6g}" for x in v)
+
+
+@dataclasses.dataclass(frozen=True)
+class GripperSpec:
+    """Static description of one floating gripper.
+
+    ``lo``/``hi``: joint limits of (x, y, z, rx, ry, rz) in the base frame (metres, radians); the same
+    limits are the position-actuator control ranges. ``base_pos``/``base_yaw``: the base frame (yaw in
+    degrees about world z). ``init``: nominal starting joint values.
+    """
+
+    name: str
+    base_pos: tuple[float, float, float]
+    base_yaw: float
+    lo: tuple[float, ...]
+    hi: tuple[float, ...]
+    rgba: tuple[float, float, float, float] = (0.3, 0.5, 0.9, 1.0)
+    kp_pos: float = 2000.0
+    kv_pos: float = 65.0
+    kp_rot: float = 20.0
+    kv_rot: float = 0.6
+    kp_grip: float = 300.0
+    kv_grip: float = 8.0
+    grip_force: float = 20.0
+    finger_friction: float = 1.5
+
+
+def gripper_body_xml(s: GripperSpec) -> str:
+    """``<body>`` of one gripper (goes in ``<worldbody>``)."""
+    n = s.name
+    axes = ("1 0 0", "0 1 0", "0 0 1")
+    joints = []
+    for i, ax in enumerate(axes):
+        joints.append(
+            f'<joint name="{n}_{"xyz"[i]}" type="slide" axis="{ax}" range="{s.lo[i]:.6g} {s.hi[i]:.6g}" '
+            f'armature="0.1"/>')
+    for i, ax in enumerate(axes):
+        joints.append(
+            f'<joint name="{n}_r{"xyz"[i]}" type="hinge" axis="{ax}" range="{s.lo[3 + i]:.6g} {s.hi[3 + i]:.6g}" '
+            f'armature="0.005"/>')
+    fx, fy, fz = FINGER_HALF
+    rgba = _fmt(s.rgba)
+    dark = _fmt((0.15, 0.15, 0.15, 1.0))
+    fingers = []
+    for side, sign in (("fl", 1.0), ("fr", -1.0)):
+        fingers.append(
+            f'<body name="{n}_{side}" gravcomp="1">'
+            f'<joint name="{n}_{side}" type="slide" axis="{sign:g} 0 0" range="0 {MAX_GAP / 2:.6g}" armature="0.1"/>'
+            f'<geom name="{n}_{side}" type="box" size="{_fmt(FINGER_HALF)}" pos="{sign * fx:.6g} 0 {FINGER_ZC:.6g}" '
+            f'mass="0.02" rgba="{dark}"/>'
+            f'</body>')
+    return (
+        f'<body name="{n}_base" pos="{_fmt(s.base_pos)}" euler="0 0 {np.deg2rad(s.base_yaw):.12g}">'
+        f'<body name="{n}" gravcomp="1">' + "".join(joints) +
+        f'<site name="{n}_tcp" size="0.004" rgba="1 0 0 0.5"/>'
+        f'<geom name="{n}_palm" type="box" size="{_fmt(PALM_HALF)}" pos="0 0 {PALM_ZC:.6g}" mass="0.3" rgba="{rgba}"/>'
+        f'<geom name="{n}_wrist" type="cylinder" size="0.018 0.03" pos="0 0 {PALM_ZC + PALM_HALF[2] + 0.03:.6g}" '
+        f'mass="0.1" rgba="{rgba}"/>' + "".join(fingers) + '</body></body>')
+
+
+def gripper_actuator_xml(s: GripperSpec) -> str:
+    """The 7 position actuators of one gripper, in the order x, y, z, rx, ry, rz, grip."""
+    n = s.name
+    out = []
+    for i, j in enumerate(("x", "y", "z", "rx", "ry", "rz")):
+        kp, kv = (s.kp_pos, s.kv_pos) if i < 3 else (s.kp_rot, s.kv_rot)
+        frc = 60.0 if i < 3 else 3.0
+        out.append(f'<position name="{n}_{j}" joint="{n}_{j}" kp="{kp:g}" kv="{kv:g}" '
+                   f'ctrlrange="{s.lo[i]:.6g} {s.hi[i]:.6g}" forcerange="-{frc:g} {frc:g}"/>')
+    out.append(f'<position name="{n}_grip" tendon="{n}_grip" kp="{s.kp_grip:g}" kv="{s.kv_grip:g}" '
+               f'ctrlrange="0 {MAX_GAP:.6g}" forcerange="-{s.grip_force:g} {s.grip_force:g}"/>')
+    return "".join(out)
+
+
+def gripper_tendon_xml(s: GripperSpec) -> str:
+    n = s.name
+    return (f'<fixed name="{n}_grip"><joint joint="{n}_fl" coef="1"/><joint joint="{n}_fr" coef="1"/></fixed>')
+
+
+def gripper_equality_xml(s: GripperSpec) -> str:
+    n = s.name
+    return f'<joint name="{n}_fingers" joint1="{n}_fr" joint2="{n}_fl" solref="0.01 1"/>'
+
+
+def pair_xml(g1: str, g2: str, friction: float = 1.0, condim: int = 3, margin: float = 0.0) -> str:
+    return (f'<pair geom1="{g1}" geom2="{g2}" condim="{condim}" margin="{margin:g}" '
+            f'friction="{friction:g} {friction:g} 0.005 0.0001 0.0001"/>')
+
+
+def gripper_pairs_xml(s: GripperSpec, geom: str, palm: bool = True) -> str:
+    """Contact pairs between the gripper's finger pads (and palm) and ``geom``."""
+    n = s.name
+    out = [pair_xml(f"{n}_fl", geom, s.finger_friction, margin=0.001),
+           pair_xml(f"{n}_fr", geom, s.finger_friction, margin=0.001)]
+    if palm:
+        out.append(pair_xml(f"{n}_palm", geom, 0.5))
+    return "".join(out)
+
+
+def gripper_sensors_xml(s: GripperSpec, geom: str) -> str:
+    """Two contact sensors (``data="found"``): finger pad fl / fr touching ``geom``."""
+    n = s.name
+    return "".join(f'<contact name="{n}_{f}_{geom}" geom1="{n}_{f}" geom2="{geom}" data="found" num="1"/>'
+                   for f in ("fl", "fr"))
+
+
+def free_box_xml(name: str, pos: Sequence[float], half: Sequence[float], mass: float,
+                 rgba: Sequence[float] = (0.9, 0.5, 0.1, 1.0), yaw: float = 0.0) -> str:
+    """A free-floating box body ``name`` with one geom ``name`` (radians yaw)."""
+    return (f'<body name="{name}" pos="{_fmt(pos)}" euler="0 0 {yaw:.6g}"><freejoint name="{name}"/>'
+            f'<geom name="{name}" type="box" size="{_fmt(half)}" mass="{mass:g}" rgba="{_fmt(rgba)}"/></body>')
+
+
+def table_xml(half: Sequence[float] = (0.6, 0.6), height: float = 0.4) -> str:
+    """Table top = collision plane ``table`` at z = 0 plus a visual slab and legs (no collisions)."""
+    hx, hy = half
+    legs = "".join(
+        f'<geom type="box" size="0.02 0.02 {height / 2:g}" pos="{sx * (hx - 0.04):g} {sy * (hy - 0.04):g} {-height / 2 - 0.02:g}" '
+        f'rgba="0.45 0.3 0.2 1"/>' for sx in (-1, 1) for sy in (-1, 1))
+    return (f'<geom name="table" type="plane" size="{hx:g} {hy:g} 0.01" rgba="0.75 0.6 0.45 1"/>'
+            f'<geom name="table_slab" type="box" size="{hx:g} {hy:g} 0.01" pos="0 0 -0.0105" rgba="0.6 0.45 0.3 1"/>'
+            + legs)
+
+
+def scene_xml(name: str, grippers: Sequence[GripperSpec], worldbody: str = "", contact: str = "",
+              sensor: str = "", equality: str = "", tendon: str = "", actuator: str = "",
+              iterations: int = 4, ls_iterations: int = 8) -> str:
+    """Full MJCF: options, visual, table, the grippers, extra bodies and the explicit contact pairs.
+
+    Extra actuators go *after* the gripper actuators, so ``ctrl[7*i : 7*i+7]`` belongs to gripper ``i``.
+    """
+    bodies = "".join(gripper_body_xml(g) for g in grippers)
+    acts = "".join(gripper_actuator_xml(g) for g in grippers) + actuator
+    tend = "".join(gripper_tendon_xml(g) for g in grippers) + tendon
+    eq = "".join(gripper_equality_xml(g) for g in grippers) + equality
+    return f"""<mujoco model="{name}">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{TIMESTEP}" iterations="{iterations}" ls_iterations="{ls_iterations}" solver="Newton"
+          integrator="Euler" cone="pyramidal">
+    <flag eulerdamp="disable"/>
+  </option>
+  <default><geom contype="0" conaffinity="0" solref="0.01 1"/></default>
+  <visual><global offwidth="640" offheight="480"/><quality shadowsize="1024"/>
+    <headlight ambient="0.4 0.4 0.4" diffuse="0.6 0.6 0.6"/></visual>
+  <worldbody>
+    <light pos="0 0 1.5" dir="0 0 -1" directional="true"/>
+    <camera name="side" pos="1.1 0 0.55" xyaxes="0 1 0 -0.45 0 0.89"/>
+    <camera name="top" pos="0 0 1.3" xyaxes="1 0 0 0 1 0"/>
+    <camera name="human" pos="0 -1.0 0.6" xyaxes="1 0 0 0 0.5 0.866"/>
+    {table_xml()}
+    {bodies}
+    {worldbody}
+  </worldbody>
+  <tendon>{tend}</tendon>
+  <equality>{eq}</equality>
+  <actuator>{acts}</actuator>
+  <contact>{contact}</contact>
+  <sensor>{sensor}</sensor>
+</mujoco>"""
+
+
+def build(xml: str) -> tuple[mujoco.MjModel, mjx.Model]:
+    """Compile an MJCF string into a MuJoCo model and its MJX model."""
+    m = mujoco.MjModel.from_xml_string(xml)
+    return m, mjx.put_model(m)
+
+
+# ----------------------------------------------------------------------------------------------------
+# Runtime helpers (pure, jittable). ``Gripper`` holds static indices only.
+# ----------------------------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class Gripper:
+    """Static indices of one gripper inside a compiled model."""
+
+    name: str
+    act: int                    # first actuator index (7 consecutive)
+    qpos: tuple[int, ...]       # qpos addresses of x, y, z, rx, ry, rz
+    finger_qpos: tuple[int, int]
+    body: int                   # gripper body id (its frame is the TCP)
+    base_pos: np.ndarray        # (3,) base frame origin (world)
+    base_mat: np.ndarray        # (3, 3) base frame rotation (world <- base)
+    lo: np.ndarray              # (7,) ctrl lower bounds
+    hi: np.ndarray              # (7,) ctrl upper bounds
+    sensors: dict               # geom name -> (adr_fl, adr_fr) in sensordata
+
+    @staticmethod
+    def from_model(m: mujoco.MjModel, name: str, geoms: Sequence[str] = ()) -> "Gripper":
+        jid = lambda j: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, j)
+        qpos = tuple(int(m.jnt_qposadr[jid(f"{name}_{j}")]) for j in ("x", "y", "z", "rx", "ry", "rz"))
+        fq = tuple(int(m.jnt_qposadr[jid(f"{name}_{f}")]) for f in ("fl", "fr"))
+        act = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, f"{name}_x")
+        body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
+        base = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{name}_base")
+        d = mujoco.MjData(m)
+        mujoco.mj_kinematics(m, d)
+        sens = {}
+        for g in geoms:
+            adr = []
+            for f in ("fl", "fr"):
+                sid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, f"{name}_{f}_{g}")
+                adr.append(int(m.sensor_adr[sid]))
+            sens[g] = tuple(adr)
+        return Gripper(name=name, act=int(act), qpos=qpos, finger_qpos=fq, body=int(body),
+                       base_pos=np.array(d.xpos[base]), base_mat=np.array(d.xmat[base]).reshape(3, 3),
+                       lo=np.array(m.actuator_ctrlrange[act:act + N_GRIPPER_ACT, 0]),
+                       hi=np.array(m.actuator_ctrlrange[act:act + N_GRIPPER_ACT, 1]), sensors=sens)
+
+    def __hash__(self):  # static config for jit closures
+        return hash((self.name, self.act, self.body))
+
+    def __eq__(self, other):
+        return isinstance(other, Gripper) and (self.name, self.act, self.body) == (other.name, other.act, other.body)
+
+
+def apply_gripper_action(ctrl: jax.Array, action: jax.Array, g: Gripper,
+                         pos_scale: float = POS_SCALE, rot_scale: float = ROT_SCALE) -> jax.Array:
+    """New ``ctrl`` after one agent's 7-D action: delta on the 6 pose targets, absolute gripper."""
+    a = jnp.clip(action, -1.0, 1.0)
+    cur = ctrl[g.act:g.act + 6]
+    scale = jnp.array([pos_scale] * 3 + [rot_scale] * 3)
+    pose = jnp.clip(cur + a[:6] * scale, g.lo[:6], g.hi[:6])
+    grip = (a[6] + 1.0) * 0.5 * MAX_GAP
+    return ctrl.at[g.act:g.act + N_GRIPPER_ACT].set(jnp.concatenate([pose, grip[None]]))
+
+
+def physics_step(mx: mjx.Model, d: mjx.Data, ctrl: jax.Array, n_substeps: int = N_SUBSTEPS) -> mjx.Data:
+    """Set ``ctrl`` and advance ``n_substeps`` x ``mjx.step`` (lax.scan)."""
+    d = d.replace(ctrl=ctrl)
+
+    def body(dd, _):
+        return mjx.step(mx, dd), None
+
+    d, _ = jax.lax.scan(body, d, None, length=n_substeps)
+    return d
+
+
+def make_data(m: mujoco.MjModel, mx: mjx.Model, qpos: jax.Array, ctrl: jax.Array, template: mjx.Data) -> mjx.Data:
+    """A fresh ``mjx.Data`` at ``qpos`` (zero velocity) with ``ctrl``, after ``mjx.forward``."""
+    d = template.replace(qpos=qpos, qvel=jnp.zeros_like(template.qvel), ctrl=ctrl)
+    return mjx.forward(mx, d)
+
+
+def rot6d(mat: jax.Array) -> jax.Array:
+    """Continuous 6D rotation: first two columns of a (..., 3, 3) rotation matrix, flattened."""
+    return jnp.concatenate([mat[..., :, 0], mat[..., :, 1]], axis=-1)
+
+
+def body_pos(d: mjx.Data, body: int) -> jax.Array:
+    return d.xpos[body]
+
+
+def body_mat(d: mjx.Data, body: int) -> jax.Array:
+    return d.xmat[body].reshape(3, 3)
+
+
+def tcp_pos(d: mjx.Data, g: Gripper) -> jax.Array:
+    """TCP position in the world frame."""
+    return d.xpos[g.body]
+
+
+def tcp_mat(d: mjx.Data, g: Gripper) -> jax.Array:
+    return d.xmat[g.body].reshape(3, 3)
+
+
+def to_base(p_world: jax.Array, g: Gripper) -> jax.Array:
+    """A world point expressed in the gripper's base frame."""
+    return jnp.asarray(g.base_mat.T) @ (p_world - jnp.asarray(g.base_pos))
+
+
+def tcp_pose_base(d: mjx.Data, g: Gripper) -> jax.Array:
+    """(9,) TCP position (3) and 6D rotation (6), both in the agent's base frame."""
+    pos = to_base(tcp_pos(d, g), g)
+    mat = jnp.asarray(g.base_mat.T) @ tcp_mat(d, g)
+    return jnp.concatenate([pos, rot6d(mat)])
+
+
+def finger_gap(d: mjx.Data, g: Gripper) -> jax.Array:
+    """Distance between the finger pads (m)."""
+    return d.qpos[g.finger_qpos[0]] + d.qpos[g.finger_qpos[1]]
+
+
+def touching(d: mjx.Data, g: Gripper, geom: str) -> jax.Array:
+    """Both finger pads are in contact with ``geom`` (contact sensors)."""
+    a, b = g.sensors[geom]
+    return (d.sensordata[a] > 0) & (d.sensordata[b] > 0)
+
+
+def is_grasping(d: mjx.Data, g: Gripper, geom: str) -> jax.Array:
+    """Grasp detector: both pads touch ``geom`` and the gripper is commanded to close past the gap."""
+    commanded_closed = d.ctrl[g.act + 6] < finger_gap(d, g) - 0.002
+    return touching(d, g, geom) & commanded_closed
+
+
+def quat_to_mat(q: jax.Array) -> jax.Array:
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return jnp.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def yaw_of(mat: jax.Array) -> jax.Array:
+    """Heading of a rotation's x axis in the xy plane."""
+    return jnp.arctan2(mat[1, 0], mat[0, 0])
+
+
+def wrap_angle(a: jax.Array, period: float = 2 * np.pi) -> jax.Array:
+    """Wrap to [-period/2, period/2)."""
+    return (a + period / 2) % period - period / 2

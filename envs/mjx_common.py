@@ -162,7 +162,7 @@ def gripper_equality_xml(s: GripperSpec) -> str:
 
 def pair_xml(g1: str, g2: str, friction: float = 1.0, condim: int = 3, margin: float = 0.0) -> str:
     return (f'<pair geom1="{g1}" geom2="{g2}" condim="{condim}" margin="{margin:g}" '
-            f'friction="{friction:g} {friction:g} 0.005 0.0001 0.0001"/>')
+            f'friction="{friction:g} {friction:g} 0.005 0.0001 0.0001" solref="0.01 1" solimp="0.95 0.99 0.001"/>')
 
 
 def gripper_pairs_xml(s: GripperSpec, geom: str, palm: bool = True) -> str:

@@ -1,0 +1,132 @@
+"""Typed configuration: one dataclass, one source of truth for defaults, method presets as flag sets."""
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+METHODS = ("cogail", "ma_infogail", "ma_gail")
+TASK_NAMES = ("fetchq", "handover", "seqmanip")
+
+
+class ConfigError(ValueError):
+    """A configuration a user gave that cannot run; the message says what to change."""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    # what
+    task: str = "fetchq"
+    method: str = "cogail"
+    seeds: tuple[int, ...] = (300, 400, 500)
+    demos: str | None = None  # training demonstrations (HDF5); default: generated and cached
+    heldout: str | None = None  # held-out demonstrations for replay evaluation
+    mix: str = "uniform"  # strategy mixture of the default datasets (uniform, D1, D2)
+    # budget
+    total_steps: int = 6_000_000  # env steps per seed
+    num_envs: int = 64
+    unroll_length: int = 94  # num_envs * unroll_length env steps per update (~6000, the paper's buffer)
+    updates_per_call: int = 10  # updates fused into one jitted call (lax.scan)
+    checkpoint_every: int = 30  # updates
+    # PPO (co-policy)
+    lr: float = 3e-4  # linear decay to 0 over the run
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_eps: float = 0.2
+    ppo_epochs: int = 4
+    num_minibatches: int = 4
+    value_coef: float = 0.5
+    entropy_coef: float = 0.0
+    max_grad_norm: float = 0.5
+    init_log_std: float = -0.5
+    reward_norm: bool = True
+    # discriminator
+    disc_loss: str = "auto"  # "bce" | "lsgan" | "auto" (the task's: bce for fetchq, lsgan for manipulation)
+    disc_lr: float = 3e-4
+    gp_coef: float = 10.0
+    # strategy code, psi, aux losses
+    code_dim: int = 2
+    code_grid: int = 5
+    code_noise: float = 0.2
+    history: int = 4  # K: psi reads s_{t-K..t} and a^H_{t-1}
+    lambda_z: float = 1.0
+    lambda_a: float = 1.0
+    aux_lr: float = 3e-4
+    inner_updates: int = 4  # discriminator / psi updates per train step (Algorithm 1's "update step = 1..n")
+    inner_batch: int = 256
+    # behaviour-cloning pre-training of the co-policy (and psi) on the demonstrations
+    bc_steps: int = 0
+    bc_lr: float = 1e-3
+    # evaluation
+    eval_codes: int = 100
+
+    # --- derived ---------------------------------------------------------------------------------
+    @property
+    def steps_per_update(self) -> int:
+        return self.num_envs * self.unroll_length
+
+    @property
+    def num_updates(self) -> int:
+        return max(1, self.total_steps // self.steps_per_update)
+
+    @property
+    def use_code(self) -> bool:
+        return self.method != "ma_gail"
+
+    @property
+    def use_lz(self) -> bool:
+        return self.method in ("cogail", "ma_infogail")
+
+    @property
+    def use_la(self) -> bool:
+        return self.method == "cogail"
+
+    def validate(self) -> "TrainConfig":
+        if self.task not in TASK_NAMES:
+            raise ConfigError(f"unknown task {self.task!r}: choose one of {', '.join(TASK_NAMES)}")
+        if self.method not in METHODS:
+            raise ConfigError(f"unknown method {self.method!r}: choose one of {', '.join(METHODS)}")
+        if not self.seeds:
+            raise ConfigError("no seeds given: pass --seeds, e.g. --seeds 300,400,500")
+        for name in ("total_steps", "num_envs", "unroll_length", "updates_per_call", "checkpoint_every",
+                     "ppo_epochs", "num_minibatches", "inner_updates", "inner_batch", "eval_codes"):
+            if getattr(self, name) <= 0:
+                raise ConfigError(f"{name.replace('_', '-')} must be positive, got {getattr(self, name)}")
+        if self.history < 0 or self.bc_steps < 0:
+            raise ConfigError("history and bc-steps must be >= 0")
+        if self.steps_per_update % self.num_minibatches:
+            raise ConfigError(
+                f"num-envs x unroll-length ({self.steps_per_update}) must be divisible by num-minibatches "
+                f"({self.num_minibatches})")
+        if self.disc_loss not in ("auto", "bce", "lsgan"):
+            raise ConfigError(f"disc-loss must be auto, bce or lsgan, got {self.disc_loss!r}")
+        return self
+
+    def replace(self, **kw) -> "TrainConfig":
+        return dataclasses.replace(self, **kw)
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), indent=2)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TrainConfig":
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(d) - names
+        if unknown:
+            raise ConfigError(f"unknown config keys {sorted(unknown)}")
+        d = dict(d)
+        if "seeds" in d:
+            d["seeds"] = tuple(int(s) for s in d["seeds"])
+        return cls(**d)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "TrainConfig":
+        return cls.from_dict(json.loads(Path(path).read_text()))
+
+
+def field_help() -> dict[str, object]:
+    return {f.name: f.default for f in dataclasses.fields(TrainConfig)}
+
+
+__all__ = ["TrainConfig", "ConfigError", "METHODS", "TASK_NAMES", "field", "field_help"]

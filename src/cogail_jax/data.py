@@ -1,0 +1,191 @@
+"""Demonstration datasets: HDF5 files in the robomimic layout, their validation, and the default cache.
+
+Schema (version 1)::
+
+    file attrs:  task (str), schema_version (int), obs_dim, human_action_dim, robot_action_dim, init_dim,
+                 num_demos, mixture (str), seed (int)
+    data/demo_<i>/obs            float32 (T, obs_dim)            state before each step
+    data/demo_<i>/actions_human  float32 (T, human_action_dim)   the human's action at each step
+    data/demo_<i>/actions_robot  float32 (T, robot_action_dim)   the robot's action at each step
+    data/demo_<i>/init           float32 (init_dim,)             reset parameters (env.reset_from) [optional]
+    data/demo_<i> attrs:         strategy (int, 1..S; 0 = unknown), num_samples (int, = T)
+
+The full action the environment takes is ``concat(actions_human, actions_robot)``. ``init`` is only
+needed for replay evaluation (held-out sets); training files may omit it.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+SCHEMA_VERSION = 1
+
+# Paper defaults: number of training demonstrations per task; held-out sets for replay evaluation.
+DEFAULT_NUM = {"fetchq": 60, "handover": 160, "seqmanip": 120}
+DEFAULT_HELDOUT = {"fetchq": 60, "handover": 60, "seqmanip": 60}
+
+
+class DatasetError(ValueError):
+    """A demonstration file that cannot be used; the message names the file, the demo and the problem."""
+
+
+@dataclass
+class Demos:
+    """Demonstrations padded to a common length (arrays have a leading demo axis)."""
+
+    obs: np.ndarray  # (N, T, obs_dim)
+    actions_human: np.ndarray  # (N, T, Ah)
+    actions_robot: np.ndarray  # (N, T, Ar)
+    length: np.ndarray  # (N,)
+    strategy: np.ndarray  # (N,)
+    init: np.ndarray | None  # (N, init_dim) or None
+    task: str
+    path: str = ""
+
+    @property
+    def num(self) -> int:
+        return int(self.obs.shape[0])
+
+
+def save_demos(path: str | os.PathLike, env, episodes, mixture: str = "uniform", seed: int = 0) -> Path:
+    """Write episodes (``demos.Episodes``) to an HDF5 file in the project's schema."""
+    import h5py
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    with h5py.File(tmp, "w") as f:
+        f.attrs.update(task=env.name, schema_version=SCHEMA_VERSION, obs_dim=env.observation_size,
+                       human_action_dim=env.human_action_size, robot_action_dim=env.robot_action_size,
+                       init_dim=env.init_size, num_demos=len(episodes.length), mixture=str(mixture), seed=int(seed))
+        data = f.create_group("data")
+        for i in range(len(episodes.length)):
+            n = int(episodes.length[i])
+            g = data.create_group(f"demo_{i}")
+            g.create_dataset("obs", data=np.asarray(episodes.obs[i, :n], np.float32))
+            g.create_dataset("actions_human", data=np.asarray(episodes.actions_human[i, :n], np.float32))
+            g.create_dataset("actions_robot", data=np.asarray(episodes.actions_robot[i, :n], np.float32))
+            g.create_dataset("init", data=np.asarray(episodes.init[i], np.float32))
+            g.attrs["strategy"] = int(episodes.strategy[i])
+            g.attrs["num_samples"] = n
+    os.replace(tmp, path)
+    return path
+
+
+def _demo_key(name: str) -> tuple[int, str]:
+    tail = name.rsplit("_", 1)[-1]
+    return (int(tail), name) if tail.isdigit() else (1 << 30, name)
+
+
+def load_demos(path: str | os.PathLike, env, require_init: bool = False) -> Demos:
+    """Read and validate a demonstration file against ``env``; raise ``DatasetError`` on any problem."""
+    import h5py
+
+    path = Path(path)
+    where = f"demonstration file {path}"
+    if not path.exists():
+        raise DatasetError(f"{where} does not exist: check the path or make one with `cogail demos`")
+    try:
+        f = h5py.File(path, "r")
+    except OSError:
+        raise DatasetError(f"{where} is not an HDF5 file: give a file written by `cogail demos` or `cogail import`")
+    with f:
+        task = f.attrs.get("task")
+        if isinstance(task, bytes):
+            task = task.decode()
+        if task is not None and task != env.name:
+            raise DatasetError(f"{where} holds demonstrations of task {task!r}, not {env.name!r}: use a {env.name} file")
+        if "data" not in f or not isinstance(f["data"], h5py.Group):
+            raise DatasetError(f"{where} has no 'data' group: it does not follow the robomimic layout (data/demo_<i>/...)")
+        names = sorted((k for k in f["data"].keys() if k.startswith("demo")), key=_demo_key)
+        if not names:
+            raise DatasetError(f"{where} is empty: its 'data' group holds no demo_<i> groups")
+        dims = {"obs": env.observation_size, "actions_human": env.human_action_size,
+                "actions_robot": env.robot_action_size}
+        arrays: dict[str, list[np.ndarray]] = {k: [] for k in dims}
+        inits, strategies, lengths = [], [], []
+        for name in names:
+            g = f["data"][name]
+            at = f"{where}, demo {name}"
+            if not isinstance(g, h5py.Group):
+                raise DatasetError(f"{at} is not a group: each demo must be a group with obs and actions datasets")
+            T = None
+            for key, dim in dims.items():
+                if key not in g:
+                    raise DatasetError(f"{at} has no '{key}' dataset: each demo needs {', '.join(dims)}")
+                a = g[key]
+                if not isinstance(a, h5py.Dataset) or a.dtype.kind not in "fiu":
+                    raise DatasetError(f"{at}: '{key}' is not a numeric array")
+                a = np.asarray(a[()], np.float32)
+                if a.ndim != 2 or a.shape[1] != dim:
+                    raise DatasetError(f"{at}: '{key}' has shape {a.shape}, expected (T, {dim}) for task {env.name}")
+                if T is None:
+                    T = a.shape[0]
+                elif a.shape[0] != T:
+                    raise DatasetError(f"{at}: '{key}' has {a.shape[0]} steps but 'obs' has {T}")
+                if not np.all(np.isfinite(a)):
+                    raise DatasetError(f"{at}: '{key}' contains NaN or infinite values")
+                arrays[key].append(a)
+            if T == 0:
+                raise DatasetError(f"{at} has zero steps")
+            n = g.attrs.get("num_samples", T)
+            if int(n) != T:
+                raise DatasetError(f"{at}: attr num_samples={int(n)} but the arrays have {T} steps")
+            lengths.append(T)
+            strategies.append(int(g.attrs.get("strategy", 0)))
+            if "init" in g:
+                init = np.asarray(g["init"][()], np.float32).reshape(-1)
+                if init.shape != (env.init_size,) or not np.all(np.isfinite(init)):
+                    raise DatasetError(f"{at}: 'init' must be {env.init_size} finite numbers, got shape {init.shape}")
+                inits.append(init)
+            elif require_init:
+                raise DatasetError(f"{at} has no 'init' dataset, which replay evaluation needs to restart the episode")
+    N, Tmax = len(names), max(lengths)
+
+    def pad(xs, dim):
+        out = np.zeros((N, Tmax, dim), np.float32)
+        for i, x in enumerate(xs):
+            out[i, : len(x)] = x
+        return out
+
+    return Demos(
+        obs=pad(arrays["obs"], env.observation_size),
+        actions_human=pad(arrays["actions_human"], env.human_action_size),
+        actions_robot=pad(arrays["actions_robot"], env.robot_action_size),
+        length=np.asarray(lengths, np.int32),
+        strategy=np.asarray(strategies, np.int32),
+        init=np.stack(inits) if len(inits) == N else None,
+        task=env.name,
+        path=str(path),
+    )
+
+
+def data_dir() -> Path:
+    """Where default datasets are cached: $COGAIL_DATA, else ./data."""
+    return Path(os.environ.get("COGAIL_DATA", "data"))
+
+
+def default_demo_path(task: str, split: str, mix: str = "uniform") -> Path:
+    return data_dir() / f"{task}_{mix}_{split}.hdf5"
+
+
+def ensure_default_demos(env, split: str = "train", mix: str = "uniform", verbose: bool = True) -> Path:
+    """Path of the default dataset of a task (``train`` or ``heldout``), generating it on first use."""
+    from . import demos
+
+    path = default_demo_path(env.name, split, mix)
+    if path.exists():
+        return path
+    num = DEFAULT_NUM[env.name] if split == "train" else DEFAULT_HELDOUT[env.name]
+    seed = 0 if split == "train" else 1
+    if verbose:
+        print(f"making {num} {split} demonstrations for {env.name} (mixture {mix}) -> {path}", flush=True)
+    eps = demos.generate(env, num, mix=mix, seed=seed)
+    ok = eps.success > 0
+    if not ok.all():  # keep successful demonstrations only
+        eps = demos.Episodes(*[v[ok] if isinstance(v, np.ndarray) else {k: np.asarray(x)[ok] for k, x in v.items()}
+                               for v in eps])
+    return save_demos(path, env, eps, mixture=mix, seed=seed)

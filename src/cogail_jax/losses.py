@@ -1,0 +1,86 @@
+"""Losses: PPO (clipped surrogate + value), discriminator (BCE or LSGAN with gradient penalty), L_z, L_a."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from .networks import gaussian_entropy, gaussian_log_prob
+
+
+def gae(rewards, values, dones, last_value, gamma, lam):
+    """Generalised advantage estimation over a (T, N) rollout; ``dones[t]`` ends the episode after step t."""
+
+    def body(carry, x):
+        adv, next_value = carry
+        r, v, d = x
+        delta = r + gamma * next_value * (1 - d) - v
+        adv = delta + gamma * lam * (1 - d) * adv
+        return (adv, v), adv
+
+    _, adv = jax.lax.scan(body, (jnp.zeros_like(last_value), last_value), (rewards, values, dones), reverse=True)
+    return adv, adv + values
+
+
+def ppo_loss(actor_apply, critic_apply, params, batch, clip_eps, value_coef, entropy_coef):
+    mean, log_std = actor_apply(params["actor"], batch["obs"], batch["z"])
+    logp = gaussian_log_prob(mean, log_std, batch["action"])
+    ratio = jnp.exp(logp - batch["logp"])
+    adv = batch["adv"]
+    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+    pg = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - clip_eps, 1 + clip_eps) * adv).mean()
+    value = critic_apply(params["critic"], batch["obs"], batch["z"])
+    v_loss = 0.5 * ((value - batch["ret"]) ** 2).mean()
+    ent = gaussian_entropy(log_std).mean()
+    total = pg + value_coef * v_loss - entropy_coef * ent
+    kl = ((ratio - 1) - jnp.log(ratio)).mean()
+    return total, {"policy_loss": pg, "value_loss": v_loss, "entropy": ent, "approx_kl": kl}
+
+
+def discriminator_loss(disc_apply, params, expert, policy, kind, gp_coef, rng):
+    """BCE (expert -> 1) or LSGAN (expert -> +1, policy -> -1) plus a gradient penalty on interpolates."""
+    d_e = disc_apply(params, expert)
+    d_p = disc_apply(params, policy)
+    if kind == "bce":
+        loss = optax.sigmoid_binary_cross_entropy(d_e, 1.0).mean() + optax.sigmoid_binary_cross_entropy(d_p, 0.0).mean()
+        acc_e, acc_p = (d_e > 0).mean(), (d_p < 0).mean()
+    else:
+        loss = ((d_e - 1) ** 2).mean() + ((d_p + 1) ** 2).mean()
+        acc_e, acc_p = (d_e > 0).mean(), (d_p < 0).mean()
+    alpha = jax.random.uniform(rng, (expert.shape[0], 1))
+    mix = alpha * expert + (1 - alpha) * policy
+    grads = jax.vmap(jax.grad(lambda x: disc_apply(params, x[None])[0]))(mix)
+    gp = ((jnp.linalg.norm(grads, axis=-1) - 1) ** 2).mean()
+    return loss + gp_coef * gp, {"disc_loss": loss, "disc_gp": gp, "disc_acc_expert": acc_e, "disc_acc_policy": acc_p}
+
+
+def discriminator_reward(d, kind):
+    """Reward from the discriminator output: the logit for BCE (log D - log(1 - D)), D itself for LSGAN."""
+    return d
+
+
+def code_loss(psi_apply, actor_apply, params, batch, human_size):
+    """L_z on generated data: psi(s_{t-K..t}, mu_H(s_{t-1}, z)) should recover z; the human action in the
+    history is the policy mean, so the gradient reaches the co-policy."""
+    mean_prev, _ = actor_apply(params["actor"], batch["prev_obs"], batch["z"])
+    a_prev = jnp.where(batch["first"][:, None], 0.0, mean_prev[:, :human_size])
+    h = jnp.concatenate([batch["hist"], a_prev], -1)
+    z_hat = psi_apply(params["psi"], h)
+    return jnp.mean(jnp.sum((z_hat - batch["z"]) ** 2, -1))
+
+
+def behaviour_loss(psi_apply, actor_apply, params, batch, human_size):
+    """L_a on expert data: the human part of the co-policy, fed psi's code of the expert history, should
+    reproduce the expert human action."""
+    z_hat = psi_apply(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1))
+    mean, _ = actor_apply(params["actor"], batch["obs"], z_hat)
+    return jnp.mean(jnp.sum((mean[:, :human_size] - batch["ah"]) ** 2, -1))
+
+
+def bc_loss(psi_apply, actor_apply, params, batch, use_code):
+    """Behaviour cloning of both agents' actions (codes from psi on the expert history)."""
+    z_hat = psi_apply(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1))
+    z_hat = z_hat if use_code else jnp.zeros_like(z_hat)
+    mean, _ = actor_apply(params["actor"], batch["obs"], z_hat)
+    target = jnp.concatenate([batch["ah"], batch["ar"]], -1)
+    return jnp.mean(jnp.sum((mean - target) ** 2, -1))

@@ -1,0 +1,337 @@
+"""Co-GAIL as one compiled function.
+
+``make_train_fns(cfg, env, expert)`` returns ``init(seeds) -> TrainState`` and
+``train_chunk(state, expert) -> (state, metrics)``: ``cfg.updates_per_call`` Co-GAIL updates, each of
+which is
+
+1. a vmapped rollout of ``num_envs x unroll_length`` steps with per-episode strategy codes z (a 5 x 5 grid
+   visited in cycle order plus U[-noise, noise], resampled inside the step whenever an episode ends);
+2. ``inner_updates`` discriminator updates (BCE or LSGAN + gradient penalty) and psi / co-policy updates on
+   lambda_1 L_z (generated data) + lambda_2 L_a (expert data);
+3. discriminator rewards (return-normalised), GAE and ``ppo_epochs`` of clipped PPO over minibatches.
+
+Everything is vmapped over a leading seed axis and scanned over updates, so the host only logs and saves.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import flax.struct as struct
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from . import losses
+from .config import TrainConfig
+from .networks import Actor, Critic, Discriminator, Psi, gaussian_log_prob
+
+
+class TrainState(struct.PyTreeNode):
+    """Everything needed to resume exactly (one seed; the trainer stacks seeds on a leading axis)."""
+
+    params: dict  # actor, critic, psi, disc
+    ppo_opt: Any
+    aux_opt: Any
+    disc_opt: Any
+    norm: dict  # observation normaliser (mean, std) fitted on the training demonstrations
+    ret_rms: dict  # running mean / var / count of discounted returns (reward normalisation)
+    ret_acc: jax.Array  # (num_envs,) running discounted return
+    env_state: Any  # batched brax State
+    z: jax.Array  # (num_envs, code_dim)
+    hist: jax.Array  # (num_envs, K + 1, obs_dim) raw observations s_{t-K..t}
+    prev_ah: jax.Array  # (num_envs, human_action_size) a^H_{t-1}
+    code_counter: jax.Array  # int32: next grid cell in cycle order
+    rng: jax.Array
+    update: jax.Array  # int32: updates done
+
+
+def code_grid(n: int) -> jnp.ndarray:
+    """n x n grid of cell centres over (-1, 1)^2, row-major (the cycle order)."""
+    c = jnp.linspace(-1 + 1 / n, 1 - 1 / n, n)
+    return jnp.stack(jnp.meshgrid(c, c, indexing="ij"), -1).reshape(-1, 2)
+
+
+def expert_arrays(demos, history: int) -> dict[str, np.ndarray]:
+    """Flatten padded demonstrations into per-step arrays with psi histories (numpy, done once)."""
+    obs, ah, ar, hist, prev = [], [], [], [], []
+    for i in range(demos.num):
+        n = int(demos.length[i])
+        o = demos.obs[i, :n]
+        idx = np.clip(np.arange(n)[:, None] + np.arange(-history, 1)[None], 0, None)
+        obs.append(o)
+        ah.append(demos.actions_human[i, :n])
+        ar.append(demos.actions_robot[i, :n])
+        hist.append(o[idx])
+        p = np.zeros_like(demos.actions_human[i, :n])
+        p[1:] = demos.actions_human[i, : n - 1]
+        prev.append(p)
+    cat = lambda xs: np.concatenate(xs, 0).astype(np.float32)
+    return {"obs": cat(obs), "ah": cat(ah), "ar": cat(ar), "hist": cat(hist), "prev_ah": cat(prev)}
+
+
+def make_networks(cfg: TrainConfig, env, disc_kind: str):
+    return {
+        "actor": Actor(env.action_size, cfg.init_log_std),
+        "critic": Critic(),
+        "psi": Psi(cfg.code_dim),
+        "disc": Discriminator(squash=disc_kind == "lsgan"),
+    }
+
+
+def make_optimizers(cfg: TrainConfig):
+    total = cfg.num_updates * cfg.ppo_epochs * cfg.num_minibatches
+    sched = optax.linear_schedule(cfg.lr, 0.0, total)
+    ppo = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(sched, eps=1e-5))
+    aux = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.aux_lr))
+    disc = optax.adam(cfg.disc_lr)
+    return ppo, aux, disc
+
+
+def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
+    """Build ``init(seeds) -> state`` and the jitted ``train_chunk(state, expert) -> (state, metrics)``."""
+    cfg.validate()
+    disc_kind = env.discriminator_loss if cfg.disc_loss == "auto" else cfg.disc_loss
+    nets = make_networks(cfg, env, disc_kind)
+    actor, critic, psi, disc = (nets[k].apply for k in ("actor", "critic", "psi", "disc"))
+    ppo_tx, aux_tx, disc_tx = make_optimizers(cfg)
+    N, T, K, Ah = cfg.num_envs, cfg.unroll_length, cfg.history, env.human_action_size
+    D = env.observation_size
+    grid = code_grid(cfg.code_grid)
+    G = grid.shape[0]
+    norm_mean = jnp.asarray(norm_stats["mean"], jnp.float32)
+    norm_std = jnp.asarray(norm_stats["std"], jnp.float32)
+
+    def normalize(norm, x):
+        return (x - norm["mean"]) / norm["std"]
+
+    def hist_input(norm, hist):  # (..., K+1, D) raw -> (..., (K+1) D) normalised
+        h = normalize(norm, hist)
+        return h.reshape(*h.shape[:-2], (K + 1) * D)
+
+    def new_codes(counter, done, key):
+        """Codes for the envs whose episode (re)starts: next grid cells in cycle order plus noise."""
+        idx = counter + jnp.cumsum(done.astype(jnp.int32)) - 1
+        z = grid[idx % G] + jax.random.uniform(key, (N, cfg.code_dim), minval=-cfg.code_noise, maxval=cfg.code_noise)
+        z = jnp.clip(z, -1.0, 1.0)
+        z = z if cfg.use_code else jnp.zeros_like(z)
+        return z, counter + jnp.sum(done.astype(jnp.int32))
+
+    # ------------------------------------------------------------------ init
+    def init_one(rng):
+        k_a, k_c, k_p, k_d, k_env, k_z, rng = jax.random.split(rng, 7)
+        obs0 = jnp.zeros((1, D))
+        z0 = jnp.zeros((1, cfg.code_dim))
+        params = {
+            "actor": nets["actor"].init(k_a, obs0, z0),
+            "critic": nets["critic"].init(k_c, obs0, z0),
+            "psi": nets["psi"].init(k_p, jnp.zeros((1, (K + 1) * D + Ah))),
+            "disc": nets["disc"].init(k_d, jnp.zeros((1, D + env.action_size))),
+        }
+        env_state = jax.vmap(env.reset)(jax.random.split(k_env, N))
+        z, counter = new_codes(jnp.zeros((), jnp.int32), jnp.ones((N,), bool), k_z)
+        return TrainState(
+            params=params,
+            ppo_opt=ppo_tx.init({"actor": params["actor"], "critic": params["critic"]}),
+            aux_opt=aux_tx.init({"actor": params["actor"], "psi": params["psi"]}),
+            disc_opt=disc_tx.init(params["disc"]),
+            norm={"mean": norm_mean, "std": norm_std},
+            ret_rms={"mean": jnp.zeros(()), "var": jnp.ones(()), "count": jnp.asarray(1e-4)},
+            ret_acc=jnp.zeros((N,)),
+            env_state=env_state,
+            z=z,
+            hist=jnp.repeat(env_state.obs[:, None], K + 1, axis=1),
+            prev_ah=jnp.zeros((N, Ah)),
+            code_counter=counter,
+            rng=rng,
+            update=jnp.zeros((), jnp.int32),
+        )
+
+    # ------------------------------------------------------------------ BC pre-training
+    def bc_one(state: TrainState, expert):
+        if cfg.bc_steps == 0:
+            return state
+        tx = optax.adam(cfg.bc_lr)
+        sub = {"actor": state.params["actor"], "psi": state.params["psi"]}
+        M = expert["obs"].shape[0]
+
+        def body(carry, key):
+            sub, opt = carry
+            b = sample_expert(state.norm, expert, key, cfg.inner_batch)
+            loss, g = jax.value_and_grad(lambda p: losses.bc_loss(psi, actor, p, b, cfg.use_code))(sub)
+            upd, opt = tx.update(g, opt, sub)
+            return (optax.apply_updates(sub, upd), opt), loss
+
+        rng, key = jax.random.split(state.rng)
+        (sub, _), bc_losses = jax.lax.scan(body, (sub, tx.init(sub)), jax.random.split(key, cfg.bc_steps))
+        del M
+        return state.replace(params={**state.params, **sub}, rng=rng), bc_losses[-1]
+
+    def sample_expert(norm, expert, key, n):
+        i = jax.random.randint(key, (n,), 0, expert["obs"].shape[0])
+        return {"obs": normalize(norm, expert["obs"][i]), "ah": expert["ah"][i], "ar": expert["ar"][i],
+                "hist": hist_input(norm, expert["hist"][i]), "prev_ah": expert["prev_ah"][i]}
+
+    # ------------------------------------------------------------------ one Co-GAIL update
+    def rollout(state: TrainState, key):
+        params, norm = state.params, state.norm
+
+        def body(carry, key):
+            env_state, z, hist, prev_ah, counter = carry
+            k_act, k_reset, k_code = jax.random.split(key, 3)
+            obs_n = normalize(norm, env_state.obs)
+            mean, log_std = actor(params["actor"], obs_n, z)
+            value = critic(params["critic"], obs_n, z)
+            a = mean + jnp.exp(log_std) * jax.random.normal(k_act, mean.shape)
+            logp = gaussian_log_prob(mean, log_std, a)
+            act = jnp.clip(a, -1.0, 1.0)
+            nxt = jax.vmap(env.step)(env_state, act)
+            done = nxt.done > 0
+            tr = {"obs": env_state.obs, "z": z, "hist": hist, "first": env_state.info["t"] == 0,
+                  "action": a, "act": act, "logp": logp, "value": value, "done": done.astype(jnp.float32),
+                  "success": nxt.metrics["success"] * done}
+            fresh = jax.vmap(env.reset)(jax.random.split(k_reset, N))
+            z_new, counter = new_codes(counter, done, k_code)
+
+            def pick(r, n):
+                return jnp.where(done.reshape(done.shape + (1,) * (n.ndim - 1)), r, n)
+
+            env_state = jax.tree.map(pick, fresh, nxt)
+            hist = pick(jnp.repeat(fresh.obs[:, None], K + 1, 1), jnp.concatenate([hist[:, 1:], nxt.obs[:, None]], 1))
+            prev_ah = pick(jnp.zeros_like(prev_ah), act[:, :Ah])
+            z = pick(z_new, z)
+            return (env_state, z, hist, prev_ah, counter), tr
+
+        carry = (state.env_state, state.z, state.hist, state.prev_ah, state.code_counter)
+        (env_state, z, hist, prev_ah, counter), traj = jax.lax.scan(body, carry, jax.random.split(key, T))
+        last_value = critic(params["critic"], normalize(norm, env_state.obs), z)
+        state = state.replace(env_state=env_state, z=z, hist=hist, prev_ah=prev_ah, code_counter=counter)
+        return state, traj, last_value
+
+    def inner_updates(state: TrainState, flat, expert, key):
+        """Discriminator and psi / co-policy (L_z, L_a) updates on minibatches of generated and expert data."""
+        norm = state.norm
+
+        def body(carry, key):
+            params, aux_opt, disc_opt = carry
+            k_g, k_e, k_gp = jax.random.split(key, 3)
+            gi = jax.random.randint(k_g, (cfg.inner_batch,), 0, flat["obs"].shape[0])
+            gen = jax.tree.map(lambda x: x[gi], flat)
+            exp_b = sample_expert(norm, expert, k_e, cfg.inner_batch)
+            # psi and co-policy on lambda_1 L_z + lambda_2 L_a
+            gen_b = {"hist": hist_input(norm, gen["hist"]), "prev_obs": normalize(norm, gen["hist"][:, -2]),
+                     "first": gen["first"], "z": gen["z"]}
+
+            def aux_loss(sub):
+                p = {**params, **sub}
+                lz = losses.code_loss(psi, actor, p, gen_b, Ah) if cfg.use_lz else jnp.zeros(())
+                la = losses.behaviour_loss(psi, actor, p, exp_b, Ah) if cfg.use_la else jnp.zeros(())
+                return cfg.lambda_z * lz + cfg.lambda_a * la, (lz, la)
+
+            sub = {"actor": params["actor"], "psi": params["psi"]}
+            if cfg.use_lz or cfg.use_la:
+                (_, (lz, la)), g = jax.value_and_grad(aux_loss, has_aux=True)(sub)
+                upd, aux_opt = aux_tx.update(g, aux_opt, sub)
+                sub = optax.apply_updates(sub, upd)
+            else:
+                lz = la = jnp.zeros(())
+            # discriminator
+            x_e = jnp.concatenate([exp_b["obs"], exp_b["ah"], exp_b["ar"]], -1)
+            x_p = jnp.concatenate([normalize(norm, gen["obs"]), gen["act"]], -1)
+            (_, dm), g = jax.value_and_grad(
+                lambda p: losses.discriminator_loss(disc, p, x_e, x_p, disc_kind, cfg.gp_coef, k_gp), has_aux=True
+            )(params["disc"])
+            upd, disc_opt = disc_tx.update(g, disc_opt, params["disc"])
+            params = {**params, **sub, "disc": optax.apply_updates(params["disc"], upd)}
+            return (params, aux_opt, disc_opt), {**dm, "loss_z": lz, "loss_a": la}
+
+        carry = (state.params, state.aux_opt, state.disc_opt)
+        (params, aux_opt, disc_opt), m = jax.lax.scan(body, carry, jax.random.split(key, cfg.inner_updates))
+        return state.replace(params=params, aux_opt=aux_opt, disc_opt=disc_opt), jax.tree.map(jnp.mean, m)
+
+    def rewards(state: TrainState, traj):
+        x = jnp.concatenate([normalize(state.norm, traj["obs"]), traj["act"]], -1)
+        r = losses.discriminator_reward(disc(state.params["disc"], x), disc_kind)
+        if not cfg.reward_norm:
+            return state, r, r
+
+        def body(ret, x):
+            r_t, d_t = x
+            ret = ret * cfg.gamma + r_t
+            return ret * (1 - d_t), ret
+
+        ret_acc, rets = jax.lax.scan(body, state.ret_acc, (r, traj["done"]))
+        rms = state.ret_rms
+        b_mean, b_var, b_count = rets.mean(), rets.var(), rets.size
+        delta = b_mean - rms["mean"]
+        tot = rms["count"] + b_count
+        mean = rms["mean"] + delta * b_count / tot
+        m2 = rms["var"] * rms["count"] + b_var * b_count + delta**2 * rms["count"] * b_count / tot
+        rms = {"mean": mean, "var": m2 / tot, "count": tot}
+        return state.replace(ret_rms=rms, ret_acc=ret_acc), r / jnp.sqrt(rms["var"] + 1e-8), r
+
+    def ppo_update(state: TrainState, traj, adv, ret, key):
+        n = T * N
+        obs_n = normalize(state.norm, traj["obs"]).reshape(n, D)
+        z, action = traj["z"].reshape(n, -1), traj["action"].reshape(n, -1)
+        # log-probs under the co-policy as the inner (L_z / L_a) updates left it: the PPO ratio starts at 1
+        mean, log_std = actor(state.params["actor"], obs_n, z)
+        logp_old = jax.lax.stop_gradient(gaussian_log_prob(mean, log_std, action))
+        flat = {"obs": obs_n, "z": z, "action": action, "logp": logp_old, "adv": adv.reshape(n), "ret": ret.reshape(n)}
+        mb = n // cfg.num_minibatches
+
+        def epoch(carry, key):
+            def minibatch(carry, idx):
+                sub, opt = carry
+                batch = jax.tree.map(lambda x: x[idx], flat)
+                (_, m), g = jax.value_and_grad(
+                    lambda p: losses.ppo_loss(actor, critic, p, batch, cfg.clip_eps, cfg.value_coef, cfg.entropy_coef),
+                    has_aux=True)(sub)
+                upd, opt = ppo_tx.update(g, opt, sub)
+                return (optax.apply_updates(sub, upd), opt), m
+
+            perm = jax.random.permutation(key, n)[: mb * cfg.num_minibatches].reshape(cfg.num_minibatches, mb)
+            return jax.lax.scan(minibatch, carry, perm)
+
+        sub = {"actor": state.params["actor"], "critic": state.params["critic"]}
+        (sub, opt), m = jax.lax.scan(epoch, (sub, state.ppo_opt), jax.random.split(key, cfg.ppo_epochs))
+        return state.replace(params={**state.params, **sub}, ppo_opt=opt), jax.tree.map(jnp.mean, m)
+
+    def train_step(state: TrainState, expert):
+        rng, k_roll, k_inner, k_ppo = jax.random.split(state.rng, 4)
+        state = state.replace(rng=rng)
+        state, traj, last_value = rollout(state, k_roll)
+        flat = jax.tree.map(lambda x: x.reshape((T * N,) + x.shape[2:]), traj)
+        state, inner_m = inner_updates(state, flat, expert, k_inner)
+        state, r_norm, r_raw = rewards(state, traj)
+        adv, ret = losses.gae(r_norm, traj["value"], traj["done"], last_value, cfg.gamma, cfg.gae_lambda)
+        state, ppo_m = ppo_update(state, traj, adv, ret, k_ppo)
+        episodes = traj["done"].sum()
+        finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(state.params)]))
+        metrics = {**inner_m, **ppo_m, "reward": r_raw.mean(), "episodes": episodes,
+                   "episode_success": traj["success"].sum() / jnp.maximum(episodes, 1.0),
+                   "nonfinite": (~finite).astype(jnp.float32)}
+        return state.replace(update=state.update + 1), metrics
+
+    # ------------------------------------------------------------------ seed-vmapped, scanned, jitted
+    def init(seeds, expert):
+        keys = jnp.stack([jax.random.PRNGKey(int(s)) for s in seeds])
+        state = jax.jit(jax.vmap(init_one))(keys)
+        if cfg.bc_steps:
+            state, _ = jax.jit(jax.vmap(bc_one, in_axes=(0, None)))(state, expert)
+        return state
+
+    def chunk(state, expert):
+        step = jax.vmap(train_step, in_axes=(0, None))
+        return jax.lax.scan(lambda s, _: step(s, expert), state, None, length=cfg.updates_per_call)
+
+    train_chunk = jax.jit(chunk, donate_argnums=(0,))
+    return init, train_chunk, nets
+
+
+def fit_normalizer(expert: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Observation mean/std of the training demonstrations (std floored so constant features stay finite)."""
+    return {"mean": expert["obs"].mean(0), "std": np.maximum(expert["obs"].std(0), 1e-2)}
+
+
+__all__ = ["TrainState", "make_train_fns", "expert_arrays", "fit_normalizer", "code_grid", "Callable"]

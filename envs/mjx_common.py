@@ -160,16 +160,17 @@ def gripper_equality_xml(s: GripperSpec) -> str:
     return f'<joint name="{n}_fingers" joint1="{n}_fr" joint2="{n}_fl" solref="0.01 1"/>'
 
 
-def pair_xml(g1: str, g2: str, friction: float = 1.0, condim: int = 3, margin: float = 0.0) -> str:
+def pair_xml(g1: str, g2: str, friction: float = 1.0, condim: int = 3, margin: float = 0.0,
+             torsion: float = 0.005) -> str:
     return (f'<pair geom1="{g1}" geom2="{g2}" condim="{condim}" margin="{margin:g}" '
-            f'friction="{friction:g} {friction:g} 0.005 0.0001 0.0001" solref="0.01 1" solimp="0.95 0.99 0.001"/>')
+            f'friction="{friction:g} {friction:g} {torsion:g} 0.0001 0.0001" solref="0.01 1" solimp="0.95 0.99 0.001"/>')
 
 
 def gripper_pairs_xml(s: GripperSpec, geom: str, palm: bool = True) -> str:
     """Contact pairs between the gripper's finger pads (and palm) and ``geom``."""
     n = s.name
-    out = [pair_xml(f"{n}_fl", geom, s.finger_friction, margin=0.001),
-           pair_xml(f"{n}_fr", geom, s.finger_friction, margin=0.001)]
+    out = [pair_xml(f"{n}_fl", geom, s.finger_friction, condim=4, margin=0.001, torsion=0.02),
+           pair_xml(f"{n}_fr", geom, s.finger_friction, condim=4, margin=0.001, torsion=0.02)]
     if palm:
         out.append(pair_xml(f"{n}_palm", geom, 0.5))
     return "".join(out)

@@ -1,0 +1,49 @@
+"""Orbax checkpoints of the whole (seed-stacked) TrainState; corrupt ones are detected and skipped."""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import orbax.checkpoint as ocp
+
+logging.getLogger("absl").setLevel(logging.ERROR)
+
+
+class CheckpointError(RuntimeError):
+    pass
+
+
+def manager(run_dir: str | Path) -> ocp.CheckpointManager:
+    return ocp.CheckpointManager(
+        Path(run_dir).absolute() / "checkpoints",
+        options=ocp.CheckpointManagerOptions(max_to_keep=None, create=True, enable_async_checkpointing=False),
+    )
+
+
+def save(mgr: ocp.CheckpointManager, step: int, state) -> None:
+    """Write atomically (Orbax writes to a temporary folder and renames it when complete)."""
+    if step in mgr.all_steps():
+        return
+    mgr.save(int(step), args=ocp.args.StandardSave(state))
+    mgr.wait_until_finished()
+
+
+def steps(mgr: ocp.CheckpointManager) -> list[int]:
+    return sorted(mgr.all_steps())
+
+
+def restore(mgr: ocp.CheckpointManager, step: int, abstract_state):
+    try:
+        return mgr.restore(int(step), args=ocp.args.StandardRestore(abstract_state))
+    except Exception as e:  # noqa: BLE001 - any failure means this checkpoint is unusable
+        raise CheckpointError(f"checkpoint {step} in {mgr.directory} is unreadable ({type(e).__name__})") from e
+
+
+def restore_latest_valid(mgr: ocp.CheckpointManager, abstract_state, log=print):
+    """Restore the newest readable checkpoint; say which ones were skipped. Returns (step, state) or (None, None)."""
+    for step in reversed(steps(mgr)):
+        try:
+            return step, restore(mgr, step, abstract_state)
+        except CheckpointError as e:
+            log(f"warning: {e}; trying the previous one")
+    return None, None

@@ -1,0 +1,191 @@
+"""The ``cogail`` command line: demos, train, eval, video."""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+
+
+def _seeds(text: str) -> tuple[int, ...]:
+    try:
+        seeds = tuple(int(s) for s in text.split(",") if s.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--seeds must be comma-separated integers, e.g. 300,400,500, got {text!r}")
+    if not seeds:
+        raise argparse.ArgumentTypeError("--seeds needs at least one integer")
+    return seeds
+
+
+def _positive(text: str) -> int:
+    try:
+        v = int(float(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .config import METHODS, TASK_NAMES
+
+    p = argparse.ArgumentParser(prog="cogail", description="Co-GAIL in JAX: learn human-robot collaboration "
+                                "policies from human-human demonstrations.")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    d = sub.add_parser("demos", help="generate scripted human-human demonstrations into an HDF5 file",
+                       description="Generate scripted human-human demonstrations (one jitted, vmapped call) "
+                                   "and write them in the project's HDF5 schema (see README).")
+    d.add_argument("--task", default="fetchq", choices=TASK_NAMES)
+    d.add_argument("--num", type=_positive, default=60, help="number of demonstrations (default 60)")
+    d.add_argument("--mix", default="uniform",
+                   help="strategy mixture: uniform, D1, D2 or comma-separated weights (default uniform)")
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--out", required=True, help="output .hdf5 path")
+
+    t = sub.add_parser("train", help="train a method on a task (resumable)",
+                       description="Train with Co-GAIL (or a baseline preset); every seed runs in one vmapped "
+                                   "program. Checkpoints, config and TensorBoard logs go to --run.")
+    t.add_argument("--task", default=None, choices=TASK_NAMES, help="task (default fetchq or the config's)")
+    t.add_argument("--method", default=None, choices=METHODS, help="method preset (default cogail)")
+    t.add_argument("--seeds", type=_seeds, default=None, help="comma-separated seeds (default 300,400,500)")
+    t.add_argument("--config", default=None, help="JSON file of config fields (e.g. experiments/fetchq_paper.json)")
+    t.add_argument("--total-steps", type=_positive, default=None, help="env steps per seed")
+    t.add_argument("--num-envs", type=_positive, default=None, help="parallel environments per seed")
+    t.add_argument("--unroll-length", type=_positive, default=None, help="rollout steps per env per update")
+    t.add_argument("--checkpoint-every", type=_positive, default=None, help="updates between checkpoints")
+    t.add_argument("--bc-steps", type=int, default=None, help="behaviour-cloning pre-training steps (0 = off)")
+    t.add_argument("--demos", default=None, help="training demonstrations (HDF5); default: generated and cached")
+    t.add_argument("--heldout", default=None, help="held-out demonstrations for replay evaluation")
+    t.add_argument("--mix", default=None, help="mixture of the default datasets: uniform, D1, D2")
+    t.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="override any config field, e.g. --set lambda_a=2.0 (repeatable)")
+    t.add_argument("--run", required=True, help="run directory")
+    t.add_argument("--resume", action="store_true", help="continue the run in --run from its last valid checkpoint")
+    t.add_argument("--eval", action="store_true", help="evaluate every checkpoint when training ends")
+    t.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    e = sub.add_parser("eval", help="evaluate every checkpoint of a run (interpolation, replay, latent map)",
+                       description="Interpolation and replay evaluation of every checkpoint and seed; writes "
+                                   "results.json, results.md and figures into the run directory.")
+    e.add_argument("--run", required=True, help="run directory")
+    e.add_argument("--no-progress", action="store_true")
+
+    v = sub.add_parser("video", help="render scripted demonstrations or a run's interpolation rollouts",
+                       description="Write a GIF/MP4 of episodes: scripted demos of --task, or, with --run, "
+                                   "the best checkpoint's interpolation rollouts.")
+    v.add_argument("--task", default="fetchq", choices=TASK_NAMES)
+    v.add_argument("--run", default=None, help="run directory (default: scripted demonstrations)")
+    v.add_argument("--num", type=_positive, default=4, help="episodes to render")
+    v.add_argument("--out", required=True, help="output .gif or .mp4")
+    return p
+
+
+def _config_from_args(a) -> "TrainConfig":  # noqa: F821
+    from .config import ConfigError, TrainConfig
+
+    fields = {}
+    if a.config:
+        path = Path(a.config)
+        if not path.exists():
+            raise ConfigError(f"config file {path} does not exist: see experiments/ for the shipped ones")
+        try:
+            fields.update(json.loads(path.read_text()))
+        except json.JSONDecodeError as e:
+            raise ConfigError(f"config file {path} is not valid JSON ({e.msg} at line {e.lineno})")
+        fields.pop("_comment", None)
+    for key in ("task", "method", "seeds", "total_steps", "num_envs", "unroll_length", "checkpoint_every",
+                "bc_steps", "demos", "heldout", "mix"):
+        val = getattr(a, key)
+        if val is not None:
+            fields[key] = val
+    defaults = TrainConfig()
+    for item in a.set:
+        if "=" not in item:
+            raise ConfigError(f"--set needs FIELD=VALUE, got {item!r}")
+        k, v = item.split("=", 1)
+        if not hasattr(defaults, k):
+            raise ConfigError(f"--set: unknown config field {k!r}")
+        kind = type(getattr(defaults, k))
+        fields[k] = (v.lower() in ("1", "true", "yes")) if kind is bool else kind(v) if kind in (int, float) else v
+    return TrainConfig.from_dict(fields).validate()
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    from cogail_envs import UnknownTaskError
+
+    from .checkpoint import CheckpointError
+    from .config import ConfigError
+    from .data import DatasetError
+    from .trainer import RunError
+
+    try:
+        return _dispatch(args)
+    except (ConfigError, DatasetError, RunError, CheckpointError, UnknownTaskError) as e:
+        print(f"cogail {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"cogail {args.command}: interrupted; a training run continues with --resume", file=sys.stderr)
+        return 130
+
+
+def _dispatch(a) -> int:
+    if a.command == "demos":
+        import time
+
+        import cogail_envs
+
+        from . import data, demos
+
+        env = cogail_envs.make_env(a.task)
+        mix = a.mix
+        if "," in mix:
+            mix = tuple(float(x) for x in mix.split(","))
+        try:
+            t0 = time.time()
+            eps = demos.generate(env, a.num, mix=mix, seed=a.seed)
+            dt = time.time() - t0
+        except ValueError as e:
+            from .config import ConfigError
+
+            raise ConfigError(str(e))
+        path = data.save_demos(a.out, env, eps, mixture=str(a.mix), seed=a.seed)
+        import numpy as np
+
+        counts = np.bincount(eps.strategy, minlength=env.num_strategies + 1)[1:]
+        print(f"wrote {a.num} {a.task} demonstrations to {path} in {dt:.1f} s: success {eps.success.mean():.3f}, "
+              f"mean length {eps.length.mean():.1f}, strategies {counts.tolist()}")
+        return 0
+    if a.command == "train":
+        from .trainer import eval_run, train_run
+
+        cfg = _config_from_args(a)
+        run = train_run(cfg, a.run, resume=a.resume, progress=not a.no_progress)
+        print(f"trained: {run}")
+        if a.eval:
+            res = eval_run(run, progress=not a.no_progress)
+            print((Path(run) / "results.md").read_text())
+            del res
+        return 0
+    if a.command == "eval":
+        from .trainer import eval_run
+
+        eval_run(a.run, progress=not a.no_progress)
+        print((Path(a.run) / "results.md").read_text())
+        return 0
+    if a.command == "video":
+        from .video import write_video
+
+        path = write_video(a.task, a.out, run=a.run, num=a.num)
+        print(f"wrote {path}")
+        return 0
+    return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,210 @@
+"""The host loop: set up a run directory, train with progress and TensorBoard logs, checkpoint, evaluate."""
+from __future__ import annotations
+
+import json
+import math
+import platform
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from . import checkpoint as ckpt
+from . import data, evaluate, train
+from .config import ConfigError, TrainConfig
+
+
+class RunError(RuntimeError):
+    """A problem with a run (directory, checkpoints, numerics) that the user must act on."""
+
+
+@dataclass
+class Setup:
+    cfg: TrainConfig
+    env: object
+    expert: dict
+    heldout: dict | None
+    init: object
+    chunk: object
+    nets: dict
+
+
+def effective_updates_per_call(cfg: TrainConfig) -> int:
+    return math.gcd(cfg.updates_per_call, cfg.checkpoint_every)
+
+
+def total_updates(cfg: TrainConfig) -> int:
+    upc = effective_updates_per_call(cfg)
+    return int(math.ceil(cfg.num_updates / upc) * upc)
+
+
+def build(cfg: TrainConfig, need_heldout: bool = True) -> Setup:
+    import cogail_envs
+
+    cfg = cfg.validate()
+    cfg = cfg.replace(updates_per_call=effective_updates_per_call(cfg))
+    env = cogail_envs.make_env(cfg.task)
+    train_path = cfg.demos or data.ensure_default_demos(env, "train", cfg.mix)
+    demos = data.load_demos(train_path, env)
+    expert = train.expert_arrays(demos, cfg.history)
+    heldout = None
+    if need_heldout:
+        hpath = cfg.heldout or data.ensure_default_demos(env, "heldout", cfg.mix)
+        heldout = evaluate.heldout_arrays(data.load_demos(hpath, env, require_init=True))
+    init, chunk, nets = train.make_train_fns(cfg, env, train.fit_normalizer(expert))
+    return Setup(cfg, env, expert, heldout, init, chunk, nets)
+
+
+def run_metadata() -> dict:
+    import importlib.metadata as md
+
+    versions = {}
+    for p in ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint", "brax", "mujoco", "mujoco-mjx", "numpy", "h5py"):
+        try:
+            versions[p] = md.version(p)
+        except md.PackageNotFoundError:
+            versions[p] = None
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5,
+                                cwd=Path(__file__).parent).stdout.strip() or None
+    except Exception:  # noqa: BLE001
+        commit = None
+    return {"versions": versions, "git_commit": commit, "python": sys.version.split()[0],
+            "platform": platform.platform(), "devices": [str(d) for d in jax.devices()],
+            "time": time.strftime("%Y-%m-%d %H:%M:%S")}
+
+
+def prepare_run_dir(cfg: TrainConfig, run_dir: Path, resume: bool) -> TrainConfig:
+    cfg_path = run_dir / "config.json"
+    if resume:
+        if not cfg_path.exists():
+            raise RunError(f"cannot resume: {run_dir} has no config.json; start a new run without --resume")
+        saved = TrainConfig.load(cfg_path)
+        if saved.task != cfg.task or saved.method != cfg.method:
+            raise RunError(f"cannot resume: {run_dir} is a {saved.method} run on {saved.task}, "
+                           f"not {cfg.method} on {cfg.task}; pass the same --task/--method or another --run")
+        return saved
+    if cfg_path.exists() and ckpt.steps(ckpt.manager(run_dir)):
+        raise RunError(f"{run_dir} already holds a run: pass --resume to continue it or choose another --run")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    cfg_path.write_text(cfg.to_json())
+    (run_dir / "run_info.json").write_text(json.dumps(run_metadata(), indent=2))
+    return cfg
+
+
+def _log_scalars(writers, metrics, update0, steps_per_update):
+    for u in range(next(iter(metrics.values())).shape[0]):
+        step = (update0 + u + 1) * steps_per_update
+        for i, w in enumerate(writers):
+            for k, v in metrics.items():
+                w.add_scalar(f"train/{k}", float(v[u, i]), step)
+
+
+def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True,
+              stop_after: int | None = None) -> Path:
+    """Train (or resume) a run; returns the run directory. ``stop_after`` stops early after that many updates
+    (tests use it to simulate an interrupted run)."""
+    run_dir = Path(run_dir)
+    cfg = prepare_run_dir(cfg, run_dir, resume)
+    s = build(cfg, need_heldout=False)
+    cfg = s.cfg
+    mgr = ckpt.manager(run_dir)
+    abstract = jax.eval_shape(lambda: s.init(cfg.seeds, s.expert))
+    state, start = None, 0
+    if resume:
+        step, state = ckpt.restore_latest_valid(mgr, abstract)
+        if step is not None:
+            start = step
+            print(f"resuming {run_dir} from update {step}", flush=True)
+    if state is None:
+        state = s.init(cfg.seeds, s.expert)
+        ckpt.save(mgr, 0, state)
+    total = total_updates(cfg)
+    upc = cfg.updates_per_call
+    from tensorboardX import SummaryWriter
+    from tqdm import tqdm
+
+    writers = [SummaryWriter(str(run_dir / "tb" / f"seed_{sd}")) for sd in cfg.seeds]
+    bar = tqdm(total=total, initial=start, unit="upd", disable=not progress, dynamic_ncols=True, file=sys.stdout)
+    update, t_start, steps_done = start, None, 0
+    try:
+        while update < total:
+            if stop_after is not None and update >= stop_after:
+                break
+            state, metrics = s.chunk(state, s.expert)
+            metrics = jax.device_get(metrics)
+            if t_start is None:  # first call includes compilation
+                t_start = time.time()
+            else:
+                steps_done += upc * cfg.steps_per_update * len(cfg.seeds)
+            if np.any(metrics["nonfinite"] > 0):
+                u = update + int(np.argmax(np.any(metrics["nonfinite"] > 0, axis=1))) + 1
+                raise RunError(f"training diverged at update {u} (non-finite parameters); the last good "
+                               f"checkpoint (update {max(ckpt.steps(mgr))}) is kept: lower --lr or change the seed")
+            _log_scalars(writers, metrics, update, cfg.steps_per_update)
+            update += upc
+            if update % cfg.checkpoint_every == 0 or update >= total:
+                ckpt.save(mgr, update, state)
+            el = time.time() - t_start
+            bar.update(upc)
+            bar.set_postfix({"env_steps/s": f"{steps_done / el:.3g}" if el > 0 and steps_done else "-",
+                             "succ": f"{metrics['episode_success'][-1].mean():.2f}",
+                             "d_loss": f"{metrics['disc_loss'][-1].mean():.3f}",
+                             "L_z": f"{metrics['loss_z'][-1].mean():.3f}",
+                             "L_a": f"{metrics['loss_a'][-1].mean():.3f}"})
+    finally:
+        bar.close()
+        for w in writers:
+            w.close()
+    if t_start is not None and steps_done:
+        el = time.time() - t_start
+        (run_dir / "speed.json").write_text(json.dumps(
+            {"env_steps_per_s": steps_done / el, "seconds_after_compile": el, "updates": update,
+             "seeds": len(cfg.seeds), "steps_per_update": cfg.steps_per_update}, indent=2))
+    return run_dir
+
+
+def eval_run(run_dir: str | Path, progress: bool = True) -> dict:
+    """Evaluate every checkpoint of a run; write results.json / results.md and figures into the run dir."""
+    run_dir = Path(run_dir)
+    if not (run_dir / "config.json").exists():
+        raise RunError(f"{run_dir} is not a run directory (no config.json): pass the --run of a training run")
+    cfg = TrainConfig.load(run_dir / "config.json")
+    s = build(cfg)
+    cfg = s.cfg
+    mgr = ckpt.manager(run_dir)
+    steps = [st for st in ckpt.steps(mgr) if st > 0] or ckpt.steps(mgr)
+    if not steps:
+        raise RunError(f"{run_dir} has no checkpoints yet: train it first")
+    abstract = jax.eval_shape(lambda: s.init(cfg.seeds, s.expert))
+    seeds_eval, codes = evaluate.make_eval_fns(cfg, s.env, s.nets)
+    held = {k: v for k, v in s.heldout.items() if k != "strategy"}
+    per_ckpt, latents = {}, {}
+    from tqdm import tqdm
+
+    for step in tqdm(steps, desc="eval", disable=not progress, file=sys.stdout):
+        try:
+            state = ckpt.restore(mgr, step, abstract)
+        except ckpt.CheckpointError as e:
+            print(f"warning: {e}; skipped", flush=True)
+            continue
+        out = jax.device_get(seeds_eval(state.params, state.norm, held, jax.random.PRNGKey(12345)))
+        per_ckpt[step] = {k: np.asarray(v) for k, v in out.items() if k != "interp_metrics"}
+        per_ckpt[step]["interp_metrics"] = {k: np.asarray(v) for k, v in out["interp_metrics"].items()}
+        latents[step] = np.asarray(out["latent"])
+    res = evaluate.summarize(cfg.task, cfg.method, cfg.seeds, per_ckpt, s.env.strategy_names, codes)
+    best0 = res["best_checkpoint"][str(cfg.seeds[0])]["replay"]
+    lat = latents[best0][0] if cfg.use_code else None
+    res["latent_map"] = {"seed": int(cfg.seeds[0]), "checkpoint": int(best0),
+                         "codes": None if lat is None else lat.tolist(),
+                         "strategy": np.asarray(s.heldout["strategy"]).tolist()}
+    evaluate.save_results(run_dir, res)
+    evaluate.write_figures(run_dir, res, lat, np.asarray(s.heldout["strategy"]), s.env.strategy_names)
+    return res
+
+
+__all__ = ["train_run", "eval_run", "RunError", "ConfigError", "build"]

@@ -22,11 +22,16 @@ strategy events. ``State.info`` holds at least ``t`` (int32 step counter).
 """
 from __future__ import annotations
 
+import contextlib
+import io
 from typing import Any, Sequence
 
 import jax
 import jax.numpy as jnp
-from brax.envs.base import Env, State
+
+with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints "Failed to import warp" (optional backend)
+    import mujoco.mjx  # noqa: F401
+    from brax.envs.base import Env, State
 
 __all__ = ["CollabEnv", "State"]
 

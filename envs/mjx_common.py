@@ -169,8 +169,8 @@ def pair_xml(g1: str, g2: str, friction: float = 1.0, condim: int = 3, margin: f
 def gripper_pairs_xml(s: GripperSpec, geom: str, palm: bool = True) -> str:
     """Contact pairs between the gripper's finger pads (and palm) and ``geom``."""
     n = s.name
-    out = [pair_xml(f"{n}_fl", geom, s.finger_friction, condim=4, margin=0.001, torsion=0.02),
-           pair_xml(f"{n}_fr", geom, s.finger_friction, condim=4, margin=0.001, torsion=0.02)]
+    out = [pair_xml(f"{n}_fl", geom, s.finger_friction, condim=4, margin=0.001, torsion=0.05),
+           pair_xml(f"{n}_fr", geom, s.finger_friction, condim=4, margin=0.001, torsion=0.05)]
     if palm:
         out.append(pair_xml(f"{n}_palm", geom, 0.5))
     return "".join(out)
@@ -203,7 +203,7 @@ def table_xml(half: Sequence[float] = (0.6, 0.6), height: float = 0.4) -> str:
 
 def scene_xml(name: str, grippers: Sequence[GripperSpec], worldbody: str = "", contact: str = "",
               sensor: str = "", equality: str = "", tendon: str = "", actuator: str = "",
-              iterations: int = 4, ls_iterations: int = 8) -> str:
+              iterations: int = 4, ls_iterations: int = 8, impratio: float = 10.0) -> str:
     """Full MJCF: options, visual, table, the grippers, extra bodies and the explicit contact pairs.
 
     Extra actuators go *after* the gripper actuators, so ``ctrl[7*i : 7*i+7]`` belongs to gripper ``i``.
@@ -215,7 +215,7 @@ def scene_xml(name: str, grippers: Sequence[GripperSpec], worldbody: str = "", c
     return f"""<mujoco model="{name}">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{TIMESTEP}" iterations="{iterations}" ls_iterations="{ls_iterations}" solver="Newton"
-          integrator="Euler" cone="pyramidal">
+          integrator="Euler" cone="pyramidal" impratio="{impratio:g}">
     <flag eulerdamp="disable"/>
   </option>
   <default><geom contype="0" conaffinity="0" solref="0.01 1"/></default>

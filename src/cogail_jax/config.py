@@ -39,7 +39,7 @@ class TrainConfig:
     value_coef: float = 0.5
     entropy_coef: float = 0.0
     max_grad_norm: float = 0.5
-    init_log_std: float = -0.5
+    init_log_std: float = -1.6  # std 0.2: the demonstrations are smooth; a noisier start is told apart at once
     reward_norm: bool = True
     # discriminator
     disc_loss: str = "auto"  # "bce" | "lsgan" | "auto" (the task's: bce for fetchq, lsgan for manipulation)
@@ -52,6 +52,7 @@ class TrainConfig:
     history: int = 4  # K: psi reads s_{t-K..t} and a^H_{t-1}
     lambda_z: float = 1.0
     lambda_a: float = 1.0
+    lambda_r: float = 1.0  # our addition: robot-action reconstruction on expert data with psi's code (0 = paper)
     aux_lr: float = 3e-4
     inner_updates: int = 4  # discriminator / psi updates per train step (Algorithm 1's "update step = 1..n")
     inner_batch: int = 256

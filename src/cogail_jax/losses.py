@@ -71,10 +71,13 @@ def code_loss(psi_apply, actor_apply, params, batch, human_size):
 
 def behaviour_loss(psi_apply, actor_apply, params, batch, human_size):
     """L_a on expert data: the human part of the co-policy, fed psi's code of the expert history, should
-    reproduce the expert human action."""
+    reproduce the expert human action. Also returns the same error for the robot part (L_r, our addition:
+    the robot acting with psi's code on expert histories, weighted by ``lambda_r``)."""
     z_hat = psi_apply(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1))
     mean, _ = actor_apply(params["actor"], batch["obs"], z_hat)
-    return jnp.mean(jnp.sum((mean[:, :human_size] - batch["ah"]) ** 2, -1))
+    la = jnp.mean(jnp.sum((mean[:, :human_size] - batch["ah"]) ** 2, -1))
+    lr = jnp.mean(jnp.sum((mean[:, human_size:] - batch["ar"]) ** 2, -1))
+    return la, lr
 
 
 def bc_loss(psi_apply, actor_apply, params, batch, use_code):

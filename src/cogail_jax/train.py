@@ -225,16 +225,18 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             def aux_loss(sub):
                 p = {**params, **sub}
                 lz = losses.code_loss(psi, actor, p, gen_b, Ah) if cfg.use_lz else jnp.zeros(())
-                la = losses.behaviour_loss(psi, actor, p, exp_b, Ah) if cfg.use_la else jnp.zeros(())
-                return cfg.lambda_z * lz + cfg.lambda_a * la, (lz, la)
+                la, lr = losses.behaviour_loss(psi, actor, p, exp_b, Ah)
+                la = la if cfg.use_la else jnp.zeros(())
+                lr = lr if cfg.lambda_r > 0 else jnp.zeros(())
+                return cfg.lambda_z * lz + cfg.lambda_a * la + cfg.lambda_r * lr, (lz, la, lr)
 
             sub = {"actor": params["actor"], "psi": params["psi"]}
-            if cfg.use_lz or cfg.use_la:
-                (_, (lz, la)), g = jax.value_and_grad(aux_loss, has_aux=True)(sub)
+            if cfg.use_lz or cfg.use_la or cfg.lambda_r > 0:
+                (_, (lz, la, lr)), g = jax.value_and_grad(aux_loss, has_aux=True)(sub)
                 upd, aux_opt = aux_tx.update(g, aux_opt, sub)
                 sub = optax.apply_updates(sub, upd)
             else:
-                lz = la = jnp.zeros(())
+                lz = la = lr = jnp.zeros(())
             # discriminator
             x_e = jnp.concatenate([exp_b["obs"], exp_b["ah"], exp_b["ar"]], -1)
             x_p = jnp.concatenate([normalize(norm, gen["obs"]), gen["act"]], -1)
@@ -243,7 +245,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             )(params["disc"])
             upd, disc_opt = disc_tx.update(g, disc_opt, params["disc"])
             params = {**params, **sub, "disc": optax.apply_updates(params["disc"], upd)}
-            return (params, aux_opt, disc_opt), {**dm, "loss_z": lz, "loss_a": la}
+            return (params, aux_opt, disc_opt), {**dm, "loss_z": lz, "loss_a": la, "loss_r": lr}
 
         carry = (state.params, state.aux_opt, state.disc_opt)
         (params, aux_opt, disc_opt), m = jax.lax.scan(body, carry, jax.random.split(key, cfg.inner_updates))

@@ -1,0 +1,46 @@
+# cogail-jax. `make train` and `make test` set everything up themselves on a fresh clone.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+TASK ?= fetchq
+METHOD ?= cogail
+SEEDS ?= 300,400,500
+BUDGET ?= paper
+RUN ?= runs/$(TASK)-$(METHOD)-$(BUDGET)
+EXTRA ?=
+
+.PHONY: install train eval test demos video bench clean help
+
+help:
+	@echo "make train [TASK=fetchq|handover|seqmanip] [METHOD=cogail|ma_infogail|ma_gail] [SEEDS=300,400,500] [BUDGET=paper|quick] [RUN=dir]"
+	@echo "make eval RUN=dir | make test | make demos TASK=... | make video RUN=dir | make bench"
+
+$(BIN)/.installed: pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[test]'
+	touch $@
+
+install: $(BIN)/.installed
+
+# Trains with the task's settings under experiments/, then evaluates every checkpoint.
+# Re-running the same command resumes an interrupted run from its last checkpoint.
+train: install
+	$(BIN)/cogail train --config experiments/$(TASK)_$(BUDGET).json --task $(TASK) --method $(METHOD) \
+	  --seeds $(SEEDS) --run $(RUN) --eval $(if $(wildcard $(RUN)/config.json),--resume,) $(EXTRA)
+
+eval: install
+	$(BIN)/cogail eval --run $(RUN)
+
+demos: install
+	$(BIN)/cogail demos --task $(TASK) --num 60 --out data/$(TASK)_demos.hdf5
+
+video: install
+	$(BIN)/cogail video --task $(TASK) $(if $(wildcard $(RUN)/config.json),--run $(RUN),) --out $(RUN)/rollouts.gif
+
+test: install
+	$(BIN)/python -m pytest -q tests
+
+clean:
+	rm -rf runs .pytest_cache

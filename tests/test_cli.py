@@ -1,0 +1,47 @@
+import subprocess
+import sys
+
+import pytest
+
+from cogail_jax import cli
+
+
+@pytest.mark.parametrize("cmd", [[], ["demos"], ["train"], ["eval"], ["video"]])
+def test_help(cmd, capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main([*cmd, "--help"])
+    assert e.value.code == 0
+    assert "usage: cogail" in capsys.readouterr().out
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "cogail_jax.cli", *args], capture_output=True, text=True, timeout=300)
+
+
+def test_demos_command(tmp_path):
+    out = tmp_path / "d.hdf5"
+    r = run("demos", "--task", "fetchq", "--num", "8", "--mix", "D1", "--seed", "0", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert out.exists() and "wrote 8 fetchq demonstrations" in r.stdout
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["train", "--run", "RUN", "--demos", "MISSING.hdf5", "--total-steps", "100"], "does not exist"),
+    (["train", "--run", "RUN", "--resume"], "cannot resume"),
+    (["eval", "--run", "RUN"], "not a run directory"),
+    (["train", "--run", "RUN", "--config", "MISSING.json"], "config file"),
+    (["train", "--run", "RUN", "--set", "nope=1"], "unknown config field"),
+])
+def test_user_errors_are_one_clear_line(args, needle, tmp_path):
+    args = [a.replace("RUN", str(tmp_path / "run")).replace("MISSING", str(tmp_path / "missing")) for a in args]
+    r = run(*args)
+    assert r.returncode == 2
+    assert needle in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("args", [["train", "--run", "x", "--method", "nope"], ["train", "--run", "x", "--seeds", "a,b"],
+                                  ["train", "--run", "x", "--num-envs", "0"]])
+def test_bad_flags(args):
+    r = run(*args)
+    assert r.returncode == 2 and "Traceback" not in r.stderr

@@ -1,0 +1,75 @@
+import h5py
+import numpy as np
+import pytest
+
+from cogail_jax import data
+
+
+def test_round_trip(demo_files, fetchq):
+    d = data.load_demos(demo_files[0], fetchq, require_init=True)
+    assert d.num == 12 and d.obs.shape[2] == fetchq.observation_size
+    assert d.actions_human.shape[2] == 2 and d.actions_robot.shape[2] == 2
+    assert d.init.shape == (12, fetchq.init_size)
+    with h5py.File(demo_files[0]) as f:
+        assert f.attrs["task"] == "fetchq" and f.attrs["schema_version"] == data.SCHEMA_VERSION
+        g = f["data/demo_3"]
+        assert g.attrs["num_samples"] == len(g["obs"]) == d.length[3]
+        assert g.attrs["strategy"] in (1, 2, 3, 4)
+        np.testing.assert_array_equal(g["obs"][()], d.obs[3, : d.length[3]])
+
+
+def _copy(src, dst, edit):
+    with h5py.File(src) as f, h5py.File(dst, "w") as g:
+        for k, v in f.attrs.items():
+            g.attrs[k] = v
+        f.copy("data", g)
+        edit(g)
+    return dst
+
+
+CASES = {
+    "missing key": (lambda g: g["data/demo_1"].__delitem__("actions_robot"), "no 'actions_robot'"),
+    "wrong dims": (lambda g: (g["data/demo_2"].__delitem__("obs"),
+                              g["data/demo_2"].create_dataset("obs", data=np.zeros((5, 7))))[1], "shape (5, 7)"),
+    "nan": (lambda g: g["data/demo_0/actions_human"].__setitem__((0, 0), np.nan), "NaN"),
+    "task mismatch": (lambda g: g.attrs.__setitem__("task", "handover"), "task 'handover'"),
+    "empty": (lambda g: g.__delitem__("data") or g.create_group("data"), "empty"),
+    "no data group": (lambda g: g.__delitem__("data"), "no 'data' group"),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_loader_errors_name_file_demo_problem(case, demo_files, fetchq, tmp_path):
+    edit, needle = CASES[case]
+    bad = _copy(demo_files[0], tmp_path / "bad.hdf5", edit)
+    with pytest.raises(data.DatasetError) as e:
+        data.load_demos(bad, fetchq)
+    msg = str(e.value)
+    assert str(bad) in msg and needle in msg and "\n" not in msg
+    if case in ("missing key", "wrong dims", "nan"):
+        assert "demo_" in msg
+
+
+def test_loader_not_hdf5_and_missing(fetchq, tmp_path):
+    junk = tmp_path / "junk.hdf5"
+    junk.write_bytes(b"this is not hdf5")
+    with pytest.raises(data.DatasetError, match="not an HDF5 file"):
+        data.load_demos(junk, fetchq)
+    with pytest.raises(data.DatasetError, match="does not exist"):
+        data.load_demos(tmp_path / "nope.hdf5", fetchq)
+
+
+def test_default_demos_are_cached(fetchq, tmp_path, monkeypatch):
+    monkeypatch.setenv("COGAIL_DATA", str(tmp_path))
+    monkeypatch.setitem(data.DEFAULT_NUM, "fetchq", 5)
+    p = data.ensure_default_demos(fetchq, "train", verbose=False)
+    assert p.exists() and data.load_demos(p, fetchq).num == 5
+    mtime = p.stat().st_mtime
+    assert data.ensure_default_demos(fetchq, "train", verbose=False) == p and p.stat().st_mtime == mtime
+
+
+def test_ten_thousand_demos_one_call(fetchq):
+    from cogail_jax import demos
+
+    eps = demos.generate(fetchq, 10000, seed=2)
+    assert eps.obs.shape[0] == 10000 and eps.success.mean() > 0.99

@@ -1,0 +1,139 @@
+import json
+import logging
+
+import jax
+import numpy as np
+import pytest
+
+from cogail_jax import checkpoint as ckpt
+from cogail_jax import data, train, trainer
+
+
+@pytest.fixture(scope="module")
+def setup(tiny_cfg, fetchq):
+    demos = data.load_demos(tiny_cfg.demos, fetchq)
+    expert = train.expert_arrays(demos, tiny_cfg.history)
+    init, chunk, nets = train.make_train_fns(tiny_cfg, fetchq, train.fit_normalizer(expert))
+    return init, chunk, expert
+
+
+@pytest.fixture(scope="module")
+def trained(setup, tiny_cfg):
+    """Run 8 calls (16 updates) of the shared jitted chunk; keep the per-call metrics."""
+    init, chunk, expert = setup
+    state = init(tiny_cfg.seeds, expert)
+    history = []
+    for _ in range(8):
+        state, m = chunk(state, expert)
+        history.append(jax.device_get(m))
+    return state, history
+
+
+def test_metrics_shapes_and_values(trained, tiny_cfg):
+    state, history = trained
+    m = history[0]
+    S, U = len(tiny_cfg.seeds), tiny_cfg.updates_per_call
+    for k in ("disc_loss", "loss_z", "loss_a", "policy_loss", "value_loss", "episode_success", "nonfinite"):
+        assert m[k].shape == (U, S), k
+        assert np.all(np.isfinite(m[k])), k
+    assert np.all(m["nonfinite"] == 0)
+    assert np.asarray(state.update).tolist() == [16, 16]
+    assert state.z.shape == (S, tiny_cfg.num_envs, 2)
+    assert np.all(np.abs(np.asarray(state.z)) <= 1.0)
+
+
+def test_no_recompilation_after_first_call(setup, trained, tiny_cfg, caplog):
+    init, chunk, expert = setup
+    state, _ = trained
+    with caplog.at_level(logging.WARNING), jax.log_compiles(True):
+        state, m = chunk(state, expert)
+        jax.block_until_ready(m)
+    assert not [r for r in caplog.records if "Compiling" in r.getMessage() and "chunk" in r.getMessage()]
+    assert chunk._cache_size() == 1
+
+
+def test_codes_cycle_through_grid(setup, tiny_cfg):
+    init, chunk, expert = setup
+    state = init(tiny_cfg.seeds, expert)
+    grid = np.asarray(train.code_grid(5))
+    z = np.asarray(state.z[0])  # first episodes take grid cells 0..num_envs-1 (+ noise)
+    assert np.all(np.abs(z - grid[: tiny_cfg.num_envs]) <= tiny_cfg.code_noise + 1e-6)
+    assert int(state.code_counter[0]) == tiny_cfg.num_envs
+
+
+def test_learning_reduces_behaviour_loss(trained):
+    _, history = trained
+    first = history[0]["loss_a"].mean(0)
+    last = history[-1]["loss_a"].mean(0)
+    assert np.all(last < 0.6 * first), (first, last)
+    d_first, d_last = history[0]["disc_loss"].mean(0), history[-1]["disc_loss"].mean(0)
+    assert np.all(d_last < d_first)  # the discriminator learns to tell policy from expert
+
+
+def test_seed_vmap_equals_single_seed_run(setup, tiny_cfg, fetchq):
+    init, chunk, expert = setup
+    both = init((3, 5), expert)
+    both, _ = chunk(both, expert)
+    init1, chunk1, _ = train.make_train_fns(tiny_cfg.replace(seeds=(5,)), fetchq,
+                                            train.fit_normalizer(expert))
+    one = init1((5,), expert)
+    one, _ = chunk1(one, expert)
+    a = jax.tree.leaves(jax.tree.map(lambda x: np.asarray(x[1]), both.params))
+    b = jax.tree.leaves(jax.tree.map(lambda x: np.asarray(x[0]), one.params))
+    # vmapped matmuls may be fused differently: equal to float32 round-off
+    for x, y in zip(a, b):
+        np.testing.assert_allclose(x, y, rtol=2e-5, atol=2e-6)
+
+
+def _final_params(run_dir, cfg):
+    s = trainer.build(cfg, need_heldout=False)
+    mgr = ckpt.manager(run_dir)
+    st = ckpt.restore(mgr, max(ckpt.steps(mgr)), jax.eval_shape(lambda: s.init(cfg.seeds, s.expert)))
+    return max(ckpt.steps(mgr)), jax.tree.leaves(jax.device_get(st.params))
+
+
+def test_resume_is_exact(tiny_cfg, tmp_path):
+    full = trainer.train_run(tiny_cfg, tmp_path / "full", progress=False)
+    part = trainer.train_run(tiny_cfg, tmp_path / "part", progress=False, stop_after=2)
+    assert ckpt.steps(ckpt.manager(part)) == [0, 2]
+    with pytest.raises(trainer.RunError, match="--resume"):
+        trainer.train_run(tiny_cfg, tmp_path / "part", progress=False)
+    trainer.train_run(tiny_cfg, tmp_path / "part", resume=True, progress=False)
+    sa, pa = _final_params(full, tiny_cfg)
+    sb, pb = _final_params(part, tiny_cfg)
+    assert sa == sb == trainer.total_updates(tiny_cfg)
+    for x, y in zip(pa, pb):
+        np.testing.assert_array_equal(x, y)  # bitwise
+    info = json.loads((full / "run_info.json").read_text())
+    assert info["versions"]["jax"] and "devices" in info
+    assert json.loads((full / "config.json").read_text())["task"] == "fetchq"
+
+    # eval on the finished run writes the paper's tables
+    res = trainer.eval_run(full, progress=False)
+    for k in ("task", "method", "seeds", "replay_success", "interpolation_success", "strategy_distribution",
+              "best_checkpoint"):
+        assert k in res
+    assert set(res["replay_success"]) >= {"mean", "std", "per_seed"}
+    assert set(res["best_checkpoint"]) == {"3", "5"}
+    assert (full / "results.md").read_text().startswith("# cogail on fetchq")
+    assert (full / "strategy_distribution.png").exists() and (full / "latent_map.png").exists()
+
+
+def test_bc_pretraining_beats_untrained_policy(tiny_cfg, fetchq):
+    from cogail_jax import evaluate
+
+    demos = data.load_demos(tiny_cfg.demos, fetchq)
+    held = evaluate.heldout_arrays(data.load_demos(tiny_cfg.demos, fetchq, require_init=True))
+    held = {k: v for k, v in held.items() if k != "strategy"}
+    expert = train.expert_arrays(demos, tiny_cfg.history)
+    cfg = tiny_cfg.replace(bc_steps=1500, seeds=(1,))
+    init, _, nets = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
+    ev, _ = evaluate.make_eval_fns(cfg, fetchq, nets)
+    untrained = init.__wrapped__ if hasattr(init, "__wrapped__") else None
+    del untrained
+    cfg0 = cfg.replace(bc_steps=0)
+    init0, _, _ = train.make_train_fns(cfg0, fetchq, train.fit_normalizer(expert))
+    s0, s1 = init0((1,), expert), init((1,), expert)
+    r0 = jax.device_get(ev(s0.params, s0.norm, held, jax.random.PRNGKey(0)))["replay_success"].mean()
+    r1 = jax.device_get(ev(s1.params, s1.norm, held, jax.random.PRNGKey(0)))["replay_success"].mean()
+    assert r0 == 0.0 and r1 > 0.2, (r0, r1)

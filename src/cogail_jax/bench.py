@@ -1,0 +1,93 @@
+"""Throughput benchmarks: env-only (random actions) and the full Co-GAIL update, in env steps/s."""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+
+def env_throughput(env, num_envs: int, steps: int = 200, reps: int = 3) -> dict:
+    """Random actions, vmapped over ``num_envs``, ``steps`` steps in a lax.scan, auto-reset by select."""
+
+    @jax.jit
+    def run(state, key):
+        def body(s, k):
+            k1, k2 = jax.random.split(k)
+            a = jax.random.uniform(k1, (num_envs, env.action_size), minval=-1, maxval=1)
+            nxt = jax.vmap(env.step)(s, a)
+            fresh = jax.vmap(env.reset)(jax.random.split(k2, num_envs))
+            done = nxt.done > 0
+            s = jax.tree.map(lambda r, n: jnp.where(done.reshape(done.shape + (1,) * (n.ndim - 1)), r, n), fresh, nxt)
+            return s, nxt.reward.sum()
+        return jax.lax.scan(body, state, jax.random.split(key, steps))
+
+    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), num_envs))
+    t0 = time.time()
+    state, r = run(state, jax.random.PRNGKey(1))
+    jax.block_until_ready(r)
+    compile_s = time.time() - t0
+    t0 = time.time()
+    for i in range(reps):
+        state, r = run(state, jax.random.PRNGKey(2 + i))
+    jax.block_until_ready(r)
+    dt = time.time() - t0
+    return {"num_envs": num_envs, "env_steps_per_s": num_envs * steps * reps / dt, "compile_s": compile_s}
+
+
+def train_throughput(cfg, env, expert, norm, calls: int = 3) -> dict:
+    from . import train
+
+    init, chunk, _ = train.make_train_fns(cfg, env, norm)
+    state = init(cfg.seeds, expert)
+    t0 = time.time()
+    state, m = chunk(state, expert)
+    jax.block_until_ready(m)
+    compile_s = time.time() - t0
+    t0 = time.time()
+    for _ in range(calls):
+        state, m = chunk(state, expert)
+    jax.block_until_ready(m)
+    dt = time.time() - t0
+    steps = calls * cfg.updates_per_call * cfg.steps_per_update * len(cfg.seeds)
+    return {"num_envs": cfg.num_envs, "seeds": len(cfg.seeds), "env_steps_per_s": steps / dt,
+            "updates_per_s": calls * cfg.updates_per_call / dt, "compile_s": compile_s}
+
+
+def main(task: str = "fetchq", sizes=(64, 1024, 8192), out: str | None = None) -> list[dict]:
+    import cogail_envs
+
+    from . import data, train
+    from .config import TrainConfig
+
+    env = cogail_envs.make_env(task)
+    rows = []
+    for n in sizes:
+        r = env_throughput(env, n)
+        rows.append({"task": task, "kind": "env-only", **r})
+        print(json.dumps(rows[-1]), flush=True)
+    demos = data.load_demos(data.ensure_default_demos(env, "train"), env)
+    base = TrainConfig(task=task)
+    expert = train.expert_arrays(demos, base.history)
+    norm = train.fit_normalizer(expert)
+    for n in sizes:
+        for seeds in ((300,), (300, 400, 500)):
+            cfg = base.replace(num_envs=n, seeds=seeds, unroll_length=94, updates_per_call=5, total_steps=n * 94 * 100)
+            r = train_throughput(cfg, env, expert, norm)
+            rows.append({"task": task, "kind": "co-gail train_step", **r})
+            print(json.dumps(rows[-1]), flush=True)
+    print(f"{'task':9} {'kind':20} {'envs':>6} {'seeds':>5} {'env steps/s':>12} {'compile s':>9}")
+    for r in rows:
+        print(f"{r['task']:9} {r['kind']:20} {r['num_envs']:>6} {r.get('seeds', 1):>5} "
+              f"{r['env_steps_per_s']:>12.3g} {r['compile_s']:>9.1f}")
+    if out:
+        Path(out).write_text(json.dumps({"device": str(jax.devices()[0]), "rows": rows}, indent=2))
+    return rows
+
+
+if __name__ == "__main__":
+    import sys
+
+    main(sys.argv[1] if len(sys.argv) > 1 else "fetchq", out=sys.argv[2] if len(sys.argv) > 2 else None)

@@ -52,6 +52,7 @@ class TrainConfig:
     history: int = 4  # K: psi reads s_{t-K..t} and a^H_{t-1}
     lambda_z: float = 1.0
     lambda_a: float = 1.0
+    lambda_spread: float = 0.0  # our addition: psi's codes of expert histories match the prior's moments (0 = off)
     lambda_r: float = 1.0  # our addition: robot-action reconstruction on expert data with psi's code (0 = paper)
     aux_lr: float = 3e-4
     inner_updates: int = 4  # discriminator / psi updates per train step (Algorithm 1's "update step = 1..n")

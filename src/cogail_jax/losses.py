@@ -77,13 +77,20 @@ def behaviour_loss(psi_apply, actor_apply, params, batch, human_size):
     mean, _ = actor_apply(params["actor"], batch["obs"], z_hat)
     la = jnp.mean(jnp.sum((mean[:, :human_size] - batch["ah"]) ** 2, -1))
     lr = jnp.mean(jnp.sum((mean[:, human_size:] - batch["ar"]) ** 2, -1))
-    return la, lr
+    return la, lr, code_spread(z_hat)
 
 
-def bc_loss(psi_apply, actor_apply, params, batch, use_code):
+def code_spread(z):
+    """Match the first two moments of a batch of codes to the prior U(-1, 1)^2 (mean 0, variance 1/3), so
+    the codes psi gives expert behaviour fill the code space the co-policy is sampled over."""
+    return jnp.sum(jnp.mean(z, 0) ** 2) + jnp.sum((jnp.var(z, 0) - 1.0 / 3.0) ** 2)
+
+
+def bc_loss(psi_apply, actor_apply, params, batch, use_code, spread_coef=0.0):
     """Behaviour cloning of both agents' actions (codes from psi on the expert history)."""
     z_hat = psi_apply(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1))
     z_hat = z_hat if use_code else jnp.zeros_like(z_hat)
     mean, _ = actor_apply(params["actor"], batch["obs"], z_hat)
     target = jnp.concatenate([batch["ah"], batch["ar"]], -1)
-    return jnp.mean(jnp.sum((mean - target) ** 2, -1))
+    spread = code_spread(z_hat) if use_code else 0.0
+    return jnp.mean(jnp.sum((mean - target) ** 2, -1)) + spread_coef * spread

@@ -158,7 +158,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         def body(carry, key):
             sub, opt = carry
             b = sample_expert(state.norm, expert, key, cfg.inner_batch)
-            loss, g = jax.value_and_grad(lambda p: losses.bc_loss(psi, actor, p, b, cfg.use_code))(sub)
+            loss, g = jax.value_and_grad(lambda p: losses.bc_loss(psi, actor, p, b, cfg.use_code, cfg.lambda_spread))(sub)
             upd, opt = tx.update(g, opt, sub)
             return (optax.apply_updates(sub, upd), opt), loss
 
@@ -225,10 +225,12 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             def aux_loss(sub):
                 p = {**params, **sub}
                 lz = losses.code_loss(psi, actor, p, gen_b, Ah) if cfg.use_lz else jnp.zeros(())
-                la, lr = losses.behaviour_loss(psi, actor, p, exp_b, Ah)
+                la, lr, spread = losses.behaviour_loss(psi, actor, p, exp_b, Ah)
                 la = la if cfg.use_la else jnp.zeros(())
                 lr = lr if cfg.lambda_r > 0 else jnp.zeros(())
-                return cfg.lambda_z * lz + cfg.lambda_a * la + cfg.lambda_r * lr, (lz, la, lr)
+                spread = spread if (cfg.use_la and cfg.lambda_spread > 0) else jnp.zeros(())
+                total = cfg.lambda_z * lz + cfg.lambda_a * la + cfg.lambda_r * lr + cfg.lambda_spread * spread
+                return total, (lz, la, lr)
 
             sub = {"actor": params["actor"], "psi": params["psi"]}
             if cfg.use_lz or cfg.use_la or cfg.lambda_r > 0:

@@ -26,4 +26,4 @@ if [ -d /tmp/runs/fetchq-uniform ]; then
   cp /tmp/runs/fetchq-uniform/results.md "$OUT/fetchq-uniform-results.md"
   cp /tmp/runs/fetchq-uniform/latent_map.png "$OUT/fetchq-uniform-latent.png"
 fi
-[ -n "${BENCH:-}" ] && timeout 150 python3 -m cogail_jax.bench fetchq "$OUT/bench-fetchq.json" 2>&1 | tail -12
+if [ -n "${BENCH:-}" ]; then timeout 150 python3 -m cogail_jax.bench fetchq "$OUT/bench-fetchq.json" 2>&1 | tail -12; fi

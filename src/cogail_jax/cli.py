@@ -82,6 +82,34 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--run", default=None, help="run directory (default: scripted demonstrations)")
     v.add_argument("--num", type=_positive, default=4, help="episodes to render")
     v.add_argument("--out", required=True, help="output .gif or .mp4")
+
+    im = sub.add_parser("import", help="convert your own demonstrations (robomimic-style HDF5 or .npz) for a task",
+                        formatter_class=argparse.RawDescriptionHelpFormatter,
+                        description=(
+                            "Convert demonstrations into the project's HDF5 schema and validate them against the task.\n\n"
+                            "inputs: robomimic-style HDF5 with any key names, or a NumPy .npz (obs, actions or\n"
+                            "actions_human + actions_robot, strategy; object arrays of per-demo arrays, or padded\n"
+                            "(N, T, dim) arrays + length). Say where each FIELD is with --key FIELD=SOURCE or --map:\n"
+                            "  obs, actions (one array, split into human | robot), actions_human, actions_robot,\n"
+                            "  init, strategy (@NAME: a demo attribute; an integer: every demo), length (npz),\n"
+                            "  group, demo_prefix (HDF5: where the demos are; default data/<all groups>).\n"
+                            "SOURCEs joined with + are concatenated (e.g. obs=obs/pos+obs/flags).\n\n"
+                            "examples:\n"
+                            "  cogail import --task fetchq --in examples/fetchq_demos.npz --out data/mine.hdf5\n"
+                            "  cogail import --task fetchq --in examples/fetchq_robomimic_style.hdf5 \\\n"
+                            "      --out data/mine.hdf5 --map examples/fetchq_robomimic_map.json"))
+    im.add_argument("--task", default="fetchq", choices=TASK_NAMES)
+    im.add_argument("--in", dest="src", required=True, metavar="FILE", help="input .hdf5/.h5 or .npz file")
+    im.add_argument("--out", required=True, metavar="FILE.hdf5", help="output file in the project's schema")
+    im.add_argument("--map", default=None, metavar="MAPFILE", help='JSON key mapping, e.g. {"obs": "states"}')
+    im.add_argument("--key", action="append", default=[], metavar="FIELD=SOURCE",
+                    help="where a field is in the input, e.g. --key obs=observations (repeatable; wins over --map)")
+
+    r = sub.add_parser("report", help="write one self-contained HTML page about a run",
+                       description="Write an HTML report of a run directory: config, learning curves from "
+                                   "TensorBoard logs, evaluation tables, figures and videos (all embedded).")
+    r.add_argument("--run", required=True, help="run directory")
+    r.add_argument("--out", default=None, metavar="FILE.html", help="output file (default RUN/report.html)")
     return p
 
 
@@ -183,6 +211,17 @@ def _dispatch(a) -> int:
 
         path = write_video(a.task, a.out, run=a.run, num=a.num)
         print(f"wrote {path}")
+        return 0
+    if a.command == "import":
+        from .importer import import_demos, load_mapping, parse_keys
+
+        mapping = {**(load_mapping(a.map) if a.map else {}), **parse_keys(a.key)}
+        print(import_demos(a.src, a.out, a.task, mapping).describe(a.task))
+        return 0
+    if a.command == "report":
+        from .report import build_report
+
+        print(f"wrote {build_report(a.run, a.out)}")
         return 0
     return 1
 

@@ -60,6 +60,7 @@ class TrainConfig:
     # behaviour-cloning pre-training of the co-policy (and psi) on the demonstrations
     bc_steps: int = 0
     bc_lr: float = 1e-3
+    bc_codes: str = "demo"  # "demo": one learned code per demonstration; "psi": psi's code of each step
     # evaluation
     eval_codes: int = 100
 

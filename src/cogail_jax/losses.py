@@ -86,11 +86,24 @@ def code_spread(z):
     return jnp.sum(jnp.mean(z, 0) ** 2) + jnp.sum((jnp.var(z, 0) - 1.0 / 3.0) ** 2)
 
 
-def bc_loss(psi_apply, actor_apply, params, batch, use_code, spread_coef=0.0):
-    """Behaviour cloning of both agents' actions (codes from psi on the expert history)."""
-    z_hat = psi_apply(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1))
-    z_hat = z_hat if use_code else jnp.zeros_like(z_hat)
-    mean, _ = actor_apply(params["actor"], batch["obs"], z_hat)
+def bc_loss(psi_apply, actor_apply, params, batch, use_code, spread_coef=0.0, codes="demo"):
+    """Behaviour cloning of both agents' actions.
+
+    ``codes="demo"``: each demonstration has a learned code (``params["codes"]``, tanh-squashed) that the
+    co-policy acts on for the whole demonstration, psi regresses it from the history, and the codes' moments
+    are pulled to the prior's (U(-1, 1)^2) so that the prior's codes are in distribution.
+    ``codes="psi"``: the co-policy acts on psi's code of each step's history.
+    """
+    z_psi = psi_apply(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1))
     target = jnp.concatenate([batch["ah"], batch["ar"]], -1)
-    spread = code_spread(z_hat) if use_code else 0.0
-    return jnp.mean(jnp.sum((mean - target) ** 2, -1)) + spread_coef * spread
+    if not use_code:
+        mean, _ = actor_apply(params["actor"], batch["obs"], jnp.zeros_like(z_psi))
+        return jnp.mean(jnp.sum((mean - target) ** 2, -1))
+    if codes == "demo":
+        all_codes = jnp.tanh(params["codes"])
+        z = all_codes[batch["demo"]]
+        mean, _ = actor_apply(params["actor"], batch["obs"], z)
+        recog = jnp.mean(jnp.sum((z_psi - jax.lax.stop_gradient(z)) ** 2, -1))
+        return jnp.mean(jnp.sum((mean - target) ** 2, -1)) + recog + 10.0 * code_spread(all_codes)
+    mean, _ = actor_apply(params["actor"], batch["obs"], z_psi)
+    return jnp.mean(jnp.sum((mean - target) ** 2, -1)) + spread_coef * code_spread(z_psi)

@@ -54,7 +54,7 @@ def code_grid(n: int) -> jnp.ndarray:
 
 def expert_arrays(demos, history: int) -> dict[str, np.ndarray]:
     """Flatten padded demonstrations into per-step arrays with psi histories (numpy, done once)."""
-    obs, ah, ar, hist, prev = [], [], [], [], []
+    obs, ah, ar, hist, prev, demo = [], [], [], [], [], []
     for i in range(demos.num):
         n = int(demos.length[i])
         o = demos.obs[i, :n]
@@ -66,8 +66,10 @@ def expert_arrays(demos, history: int) -> dict[str, np.ndarray]:
         p = np.zeros_like(demos.actions_human[i, :n])
         p[1:] = demos.actions_human[i, : n - 1]
         prev.append(p)
+        demo.append(np.full((n,), i, np.int32))
     cat = lambda xs: np.concatenate(xs, 0).astype(np.float32)
-    return {"obs": cat(obs), "ah": cat(ah), "ar": cat(ar), "hist": cat(hist), "prev_ah": cat(prev)}
+    return {"obs": cat(obs), "ah": cat(ah), "ar": cat(ar), "hist": cat(hist), "prev_ah": cat(prev),
+            "demo": np.concatenate(demo, 0)}
 
 
 def make_networks(cfg: TrainConfig, env, disc_kind: str):
@@ -152,25 +154,29 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         if cfg.bc_steps == 0:
             return state
         tx = optax.adam(cfg.bc_lr)
-        sub = {"actor": state.params["actor"], "psi": state.params["psi"]}
-        M = expert["obs"].shape[0]
+        rng, key, k_codes = jax.random.split(state.rng, 3)
+        num_demos = int(norm_stats["num_demos"])
+        # one learned code per demonstration (tanh-squashed), so the co-policy learns to act on a code held
+        # for the whole episode (as in the rollouts) and psi learns to recognise it from the history
+        sub = {"actor": state.params["actor"], "psi": state.params["psi"],
+               "codes": 0.1 * jax.random.normal(k_codes, (num_demos, cfg.code_dim))}
 
         def body(carry, key):
             sub, opt = carry
             b = sample_expert(state.norm, expert, key, cfg.inner_batch)
-            loss, g = jax.value_and_grad(lambda p: losses.bc_loss(psi, actor, p, b, cfg.use_code, cfg.lambda_spread))(sub)
+            loss, g = jax.value_and_grad(lambda p: losses.bc_loss(
+                psi, actor, p, b, cfg.use_code, cfg.lambda_spread, cfg.bc_codes))(sub)
             upd, opt = tx.update(g, opt, sub)
             return (optax.apply_updates(sub, upd), opt), loss
 
-        rng, key = jax.random.split(state.rng)
         (sub, _), bc_losses = jax.lax.scan(body, (sub, tx.init(sub)), jax.random.split(key, cfg.bc_steps))
-        del M
+        sub.pop("codes")
         return state.replace(params={**state.params, **sub}, rng=rng), bc_losses[-1]
 
     def sample_expert(norm, expert, key, n):
         i = jax.random.randint(key, (n,), 0, expert["obs"].shape[0])
         return {"obs": normalize(norm, expert["obs"][i]), "ah": expert["ah"][i], "ar": expert["ar"][i],
-                "hist": hist_input(norm, expert["hist"][i]), "prev_ah": expert["prev_ah"][i]}
+                "hist": hist_input(norm, expert["hist"][i]), "prev_ah": expert["prev_ah"][i], "demo": expert["demo"][i]}
 
     # ------------------------------------------------------------------ one Co-GAIL update
     def rollout(state: TrainState, key):
@@ -334,8 +340,10 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
 
 
 def fit_normalizer(expert: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Observation mean/std of the training demonstrations (std floored so constant features stay finite)."""
-    return {"mean": expert["obs"].mean(0), "std": np.maximum(expert["obs"].std(0), 1e-2)}
+    """Observation mean/std of the training demonstrations (std floored so constant features stay finite),
+    and the number of demonstrations (BC pre-training learns one code per demonstration)."""
+    return {"mean": expert["obs"].mean(0), "std": np.maximum(expert["obs"].std(0), 1e-2),
+            "num_demos": int(expert["demo"].max()) + 1}
 
 
 __all__ = ["TrainState", "make_train_fns", "expert_arrays", "fit_normalizer", "code_grid", "Callable"]

@@ -1,0 +1,111 @@
+"""`cogail report`: one self-contained HTML page from a (fake) run directory."""
+import base64
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cogail_jax import cli
+from cogail_jax.config import TrainConfig
+
+RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+
+
+def _png(path: Path, color) -> bytes:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(1, 1))
+    fig.subplots().imshow(np.full((4, 4, 3), color, np.uint8))
+    fig.savefig(path, format="png")
+    return path.read_bytes()
+
+
+def _fake_run(root: Path, evaluated: bool = True, seeds=(1, 2)) -> Path:
+    from tensorboardX import SummaryWriter
+
+    run = root / "run"
+    run.mkdir()
+    cfg = TrainConfig(seeds=seeds, num_envs=8, unroll_length=10, total_steps=400)
+    (run / "config.json").write_text(cfg.to_json())
+    (run / "run_info.json").write_text(json.dumps({"packages": {"jax": "0.0-test"}, "git_commit": "abc1234"}))
+    for s in seeds:
+        w = SummaryWriter(str(run / "tb" / f"seed_{s}"))
+        for u in range(1, 6):
+            step = u * cfg.steps_per_update
+            w.add_scalar("train/disc_loss", 1.0 / u + s, step)
+            w.add_scalar("train/disc_acc_expert", 0.5 + 0.05 * u, step)
+            w.add_scalar("train/loss_a", 2.0 / u, step)
+            w.add_scalar("train/episode_success", 0.1 * u, step)
+            w.add_scalar("train/reward", -u, step)
+        w.close()
+    if evaluated:
+        for ext in ("json", "md"):
+            shutil.copy(RESULTS / f"fetchq-uniform-results.{ext}", run / f"results.{ext}")
+        _png(run / "strategy_distribution.png", (200, 30, 30))
+    return run
+
+
+def test_read_scalars_matches_what_was_written(tmp_path):
+    from cogail_jax.report import read_scalars
+
+    run = _fake_run(tmp_path)
+    sc = read_scalars(run / "tb")
+    assert list(sc) == ["1", "2"]
+    steps, vals = sc["2"]["train/disc_loss"]
+    np.testing.assert_array_equal(steps, 80 * np.arange(1, 6))
+    np.testing.assert_allclose(vals, 1.0 / np.arange(1, 6) + 2, rtol=1e-6)
+
+
+def test_report_of_an_evaluated_run(tmp_path, capsys):
+    run = _fake_run(tmp_path)
+    png = (run / "strategy_distribution.png").read_bytes()
+    (run / "videos").mkdir()
+    (run / "videos" / "rollouts.gif").write_bytes(b"GIF89a-fake")
+    assert cli.main(["report", "--run", str(run)]) == 0
+    page = (run / "report.html").read_text()
+    assert "wrote" in capsys.readouterr().out
+    assert page.startswith("<!DOCTYPE html>") and page.rstrip().endswith("</html>")
+    assert base64.b64encode(png).decode() in page  # the run's figure, embedded
+    assert "data:image/gif;base64," + base64.b64encode(b"GIF89a-fake").decode() in page
+    # the evaluation table from results.md
+    assert "<th>metric</th>" in page and "<td>replay success</td>" in page and "55.0 +- 3.6" in page
+    # learning curves (one per group) + the eval curve + the run's png: at least 5 embedded PNGs
+    assert page.count("data:image/png;base64,") >= 5
+    for title in ("Episode success", "Discriminator", "Losses", "Learning curves", "Configuration"):
+        assert title in page
+    assert "abc1234" in page and "not been evaluated" not in page
+    assert "src=\"http" not in page and "<script" not in page  # self-contained
+
+
+def test_report_of_a_run_not_evaluated_yet(tmp_path, capsys):
+    run = _fake_run(tmp_path, evaluated=False)
+    out = tmp_path / "elsewhere" / "r.html"
+    assert cli.main(["report", "--run", str(run), "--out", str(out)]) == 0
+    page = out.read_text()
+    assert "has not been evaluated yet" in page and "cogail eval --run" in page
+    assert page.count("data:image/png;base64,") >= 3
+
+
+def test_report_of_a_run_that_logged_nothing(tmp_path):
+    from cogail_jax.report import build_report
+
+    run = tmp_path / "empty"
+    run.mkdir()
+    (run / "config.json").write_text(TrainConfig().to_json())
+    page = build_report(run).read_text()
+    assert "No TensorBoard scalars" in page and "not been evaluated" in page
+
+
+def test_report_of_a_directory_that_is_not_a_run(tmp_path, capsys):
+    assert cli.main(["report", "--run", str(tmp_path / "nope")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a run directory" in err[0]
+
+
+@pytest.mark.parametrize("cmd", ["import", "report"])
+def test_help(cmd, capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main([cmd, "--help"])
+    assert e.value.code == 0 and "usage: cogail" in capsys.readouterr().out

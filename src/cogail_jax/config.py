@@ -41,6 +41,7 @@ class TrainConfig:
     max_grad_norm: float = 0.5
     init_log_std: float = -1.6  # std 0.2: the demonstrations are smooth; a noisier start is told apart at once
     reward_norm: bool = True
+    policy_warmup: int = 0  # updates during which PPO trains the critic only (the actor keeps its BC init)
     # discriminator
     disc_loss: str = "auto"  # "bce" | "lsgan" | "auto" (the task's: bce for fetchq, lsgan for manipulation)
     disc_lr: float = 3e-4

@@ -297,6 +297,8 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
                 (_, m), g = jax.value_and_grad(
                     lambda p: losses.ppo_loss(actor, critic, p, batch, cfg.clip_eps, cfg.value_coef, cfg.entropy_coef),
                     has_aux=True)(sub)
+                # critic warm-up: the actor is not moved by PPO for the first `policy_warmup` updates
+                g = {**g, "actor": jax.tree.map(lambda x: x * (state.update >= cfg.policy_warmup), g["actor"])}
                 upd, opt = ppo_tx.update(g, opt, sub)
                 return (optax.apply_updates(sub, upd), opt), m
 

@@ -1,0 +1,132 @@
+"""HR-Handover (MJX) on CPU, tiny sizes: one jitted, vmapped rollout of 8 episodes serves most tests."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from cogail_envs import mjx_common as mc
+from cogail_envs.handover import H_HOLD, Handover
+
+REPEATS = 2  # scripted episodes per region
+RELEASE_AT = 200  # step at which the "drop" episode opens the human's gripper
+
+
+@pytest.fixture(scope="module")
+def env():
+    return Handover()
+
+
+@pytest.fixture(scope="module")
+def rollout(env):
+    """8 episodes in one call: 2 scripted per region, then 2 with an idle robot (one drops the bar).
+
+    Returns final metrics (frozen at the step that ended the episode) and per-step traces.
+    """
+    T = env.max_episode_steps
+
+    def one(rng, mix, robot_on, release_at):
+        k0, k1, k2 = jax.random.split(rng, 3)
+        state = env.reset(k0)
+        ts, sid = env.team_init(k1, mix)
+
+        def body(carry, key):
+            state, ts, finished, metrics = carry
+            ts, a = env.team_act(ts, state, key)
+            a = a.at[7:].multiply(robot_on)  # idle robot: all-zero action
+            a = a.at[6].set(jnp.where(state.info["t"] >= release_at, 1.0, a[6]))  # forced human release
+            nxt = env.step(state, a)
+            new_state = jax.tree.map(lambda o, n: jnp.where(finished, o, n), state, nxt)
+            new_metrics = jax.tree.map(lambda o, n: jnp.where(finished, o, n), metrics, nxt.metrics)
+            trace = dict(z=env._obj_pos(nxt.pipeline_state)[2], success=nxt.metrics["success"],
+                         done=nxt.done, finished=finished, phase_h=ts.phase[0])
+            return (new_state, ts, finished | (nxt.done > 0), new_metrics), trace
+
+        carry = (state, ts, jnp.array(False), state.metrics)
+        (_, _, _, metrics), trace = jax.lax.scan(body, carry, jax.random.split(k2, T))
+        return sid, metrics, env.classify_strategy(metrics), trace
+
+    n_team = 3 * REPEATS
+    mix = np.zeros((n_team + 2, 3), np.float32)
+    mix[np.arange(n_team), np.repeat(np.arange(3), REPEATS)] = 1.0
+    mix[n_team:] = 1.0 / 3
+    robot_on = np.array([1.0] * n_team + [0.0, 0.0], np.float32)
+    release = np.array([10**6] * (n_team + 1) + [RELEASE_AT], np.int32)
+    rngs = jax.random.split(jax.random.PRNGKey(7), n_team + 2)
+    out = jax.jit(jax.vmap(one))(rngs, jnp.asarray(mix), jnp.asarray(robot_on), jnp.asarray(release))
+    return jax.device_get(out)
+
+
+@pytest.fixture(scope="module")
+def first(env):
+    """One jitted call: reset(rng), one step with an out-of-range action, reset_from(sample_init(rng))."""
+
+    def f(rng):
+        s0 = env.reset(rng)
+        s1 = env.step(s0, jnp.zeros(env.action_size).at[0].set(5.0))  # clipped to 1 cm
+        init = env.sample_init(rng)
+        return s0, s1, init, env.reset_from(init)
+
+    return jax.device_get(jax.jit(f)(jax.random.PRNGKey(3)))
+
+
+def test_reset_step_shapes(env, first):
+    s, s2, _, _ = first
+    assert env.action_size == 14 and env.human_action_size == env.robot_action_size == 7
+    assert s.obs.shape == (env.observation_size,) and s.obs.dtype == np.float32
+    assert set(s.metrics) >= {"success", "handover", "handover_x", "handover_y", "handover_z"}
+    assert s2.obs.shape == s.obs.shape and np.shape(s2.reward) == () and np.shape(s2.done) == ()
+    assert int(s2.info["t"]) == 1 and float(s2.done) == 0.0
+    moved = float(s2.pipeline_state.ctrl[0] - s.pipeline_state.ctrl[0])
+    assert abs(moved - mc.POS_SCALE) < 1e-6
+    assert np.all(np.isfinite(s2.obs))
+
+
+def test_reset_from_reproduces_reset(env, first):
+    s, _, init, s_from = first
+    assert init.shape == (env.init_size,)
+    np.testing.assert_array_equal(s.obs, s_from.obs)
+    np.testing.assert_array_equal(s.pipeline_state.qpos, s_from.pipeline_state.qpos)
+
+
+def test_scripted_team_succeeds_in_each_region(rollout):
+    sid, metrics, cls, trace = rollout
+    n = 3 * REPEATS
+    np.testing.assert_array_equal(sid[:n], np.repeat([1, 2, 3], REPEATS))
+    assert np.all(metrics["success"][:n] == 1.0)
+    assert np.all(metrics["handover"][:n] == 1.0)
+    np.testing.assert_array_equal(cls[:n], sid[:n])
+    length = (~trace["finished"][:n]).sum(1)
+    assert np.all((length > 100) & (length < 300))
+
+
+def test_object_falls_when_released_in_the_air(rollout):
+    _, metrics, cls, trace = rollout
+    z = trace["z"][-1]
+    assert trace["phase_h"][-1, RELEASE_AT - 1] == H_HOLD  # the human was holding it still at the spot
+    assert z[RELEASE_AT - 1] > 0.10
+    assert z[-1] < 0.02  # on the table
+    assert metrics["success"][-1] == 0.0 and cls[-1] == 0
+
+
+def test_idle_robot_never_succeeds(rollout, env):
+    _, metrics, cls, trace = rollout
+    for i in (-2, -1):
+        assert trace["success"][i].max() == 0.0
+        assert cls[i] == 0
+        assert trace["done"][i, -1] == 1.0 and trace["done"][i, :-1].max() == 0.0  # time limit only
+    assert trace["z"][-2, -1] > 0.10  # the human still holds the bar out, waiting
+
+
+def test_classify_strategy_thresholds(env):
+    m = {k: jnp.zeros(4) for k in ("handover_y", "handover_z")}
+    m["handover_x"] = jnp.array([-0.2, 0.0, 0.2, 0.2])
+    m["success"] = jnp.array([1.0, 1.0, 1.0, 0.0])
+    m["handover"] = jnp.ones(4)
+    np.testing.assert_array_equal(np.asarray(env.classify_strategy(m)), [1, 2, 3, 0])
+
+
+def test_render(env, first):
+    img = env.render(first[0], width=64, height=48)
+    assert img.shape == (48, 64, 3) and img.dtype == np.uint8 and img.max() > 0

@@ -1,0 +1,147 @@
+"""HR-SeqManip (MJX) on CPU, tiny sizes: one jitted, vmapped rollout of 8 episodes serves most tests."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from cogail_envs import mjx_common as mc
+from cogail_envs.seqmanip import H_WAIT_OPEN, TRAVEL, SeqManip
+
+REPEATS = 3  # scripted episodes per strategy
+RELEASE_AT = 300  # step at which the "drop" episode opens the human's gripper
+
+
+@pytest.fixture(scope="module")
+def env():
+    return SeqManip()
+
+
+@pytest.fixture(scope="module")
+def jitted(env):
+    """``reset_from`` and ``step`` jitted once for the whole module (an MJX compile costs ~30 s on CPU)."""
+    return jax.jit(env.reset_from), jax.jit(env.step)
+
+
+@pytest.fixture(scope="module")
+def rollout(env):
+    """8 episodes in one call: 3 scripted per strategy, one where nobody acts (all-zero actions), and one
+    "robot-opens" episode with an idle robot where the human's gripper is forced open at RELEASE_AT.
+
+    Returns the intended strategy, final metrics (frozen at the step that ended the episode), the label,
+    per-step traces, and the reset parameters with the first observation.
+    """
+    T = env.max_episode_steps
+
+    def one(rng, mix, human_on, robot_on, release_at):
+        k0, k1, k2 = jax.random.split(rng, 3)
+        init = env.sample_init(k0)
+        state = env.reset_from(init)
+        ts, sid = env.team_init(k1, mix)
+
+        def body(carry, key):
+            state, ts, finished, metrics = carry
+            ts, a = env.team_act(ts, state, key)
+            a = a.at[:7].multiply(human_on).at[7:].multiply(robot_on)  # idle agent: all-zero action
+            a = a.at[6].set(jnp.where(state.info["t"] >= release_at, 1.0, a[6]))  # forced human release
+            nxt = env.step(state, a)
+            new_state = jax.tree.map(lambda o, n: jnp.where(finished, o, n), state, nxt)
+            new_metrics = jax.tree.map(lambda o, n: jnp.where(finished, o, n), metrics, nxt.metrics)
+            trace = dict(z=env._obj_pos(nxt.pipeline_state)[2], success=nxt.metrics["success"],
+                         done=nxt.done, finished=finished, phase_h=ts.phase[0],
+                         opening=env._opening(nxt.pipeline_state))
+            return (new_state, ts, finished | (nxt.done > 0), new_metrics), trace
+
+        carry = (state, ts, jnp.array(False), state.metrics)
+        (_, _, _, metrics), trace = jax.lax.scan(body, carry, jax.random.split(k2, T))
+        return sid, metrics, env.classify_strategy(metrics), trace, (init, state.obs)
+
+    n_team = 2 * REPEATS
+    mix = np.zeros((n_team + 2, 2), np.float32)
+    mix[np.arange(n_team), np.repeat(np.arange(2), REPEATS)] = 1.0
+    mix[n_team:, 1] = 1.0
+    human_on = np.array([1.0] * n_team + [0.0, 1.0], np.float32)
+    robot_on = np.array([1.0] * n_team + [0.0, 0.0], np.float32)
+    release = np.array([10**6] * (n_team + 1) + [RELEASE_AT], np.int32)
+    rngs = jax.random.split(jax.random.PRNGKey(11), n_team + 2)
+    out = jax.jit(jax.vmap(one))(rngs, jnp.asarray(mix), jnp.asarray(human_on), jnp.asarray(robot_on),
+                                 jnp.asarray(release))
+    return jax.device_get(out)
+
+
+def test_reset_step_shapes(env, jitted):
+    reset_from, step = jitted
+    s = reset_from(env.sample_init(jax.random.PRNGKey(0)))
+    assert env.action_size == 14 and env.human_action_size == env.robot_action_size == 7
+    assert env.max_episode_steps == 600 and env.strategy_names == ("human-hands-over", "robot-opens")
+    assert s.obs.shape == (env.observation_size,) == (43,) and s.obs.dtype == jnp.float32
+    assert set(s.metrics) >= {"success", "opened_by", "placed_by", "closed_by", "handover"}
+    assert float(s.obs[38]) == 0.0  # drawer opening (fraction of its travel): closed at reset
+    s2 = step(s, jnp.zeros(env.action_size).at[0].set(5.0))  # clipped to 1 cm
+    assert s2.obs.shape == s.obs.shape and s2.reward.shape == () and s2.done.shape == ()
+    assert int(s2.info["t"]) == 1 and float(s2.done) == 0.0
+    moved = float(s2.pipeline_state.ctrl[0] - s.pipeline_state.ctrl[0])
+    assert abs(moved - mc.POS_SCALE) < 1e-6
+    assert np.all(np.isfinite(np.asarray(s2.obs)))
+
+
+def test_reset_from_reproduces_the_start(env, jitted, rollout):
+    init, obs0 = rollout[-1]
+    assert init.shape == (8, env.init_size)
+    s = jitted[0](init[0])  # outside the rollout's jit, unbatched
+    np.testing.assert_allclose(np.asarray(s.obs), obs0[0], atol=1e-5)
+    assert not np.allclose(obs0[0], obs0[1])  # the init vector matters
+
+
+def test_scripted_team_succeeds_with_each_strategy(rollout):
+    sid, metrics, cls, trace, _ = rollout
+    n = 2 * REPEATS
+    np.testing.assert_array_equal(sid[:n], np.repeat([1, 2], REPEATS))
+    assert np.all(metrics["success"][:n] == 1.0)
+    np.testing.assert_array_equal(cls[:n], sid[:n])
+    # who opened / put the object in / closed: human = 1, robot = 2
+    np.testing.assert_array_equal(metrics["opened_by"][:n], sid[:n])
+    np.testing.assert_array_equal(metrics["closed_by"][:n], sid[:n])
+    np.testing.assert_array_equal(metrics["placed_by"][:n], 3 - sid[:n])
+    np.testing.assert_array_equal(metrics["handover"][:n], (sid[:n] == 1).astype(np.float32))
+    assert np.all(metrics["max_open"][:n] > 0.1)
+    length = (~trace["finished"][:n]).sum(1)
+    assert np.all((length > 250) & (length < 600))
+    assert np.all(trace["opening"][:n].max(1) <= TRAVEL + 1e-3)
+
+
+def test_nothing_done_never_succeeds(rollout):
+    _, metrics, cls, trace, _ = rollout
+    i = 2 * REPEATS
+    assert trace["success"][i].max() == 0.0 and cls[i] == 0
+    assert trace["done"][i, -1] == 1.0 and trace["done"][i, :-1].max() == 0.0  # time limit only
+    assert trace["opening"][i].max() < 1e-3 and abs(trace["z"][i, -1] - 0.015) < 2e-3
+
+
+def test_idle_robot_never_succeeds(rollout):
+    _, metrics, cls, trace, _ = rollout
+    i = -1
+    assert trace["success"][i].max() == 0.0 and cls[i] == 0
+    assert trace["done"][i, -1] == 1.0 and trace["done"][i, :-1].max() == 0.0
+    assert trace["opening"][i].max() < 1e-3  # nobody opened the drawer
+
+
+def test_object_falls_when_released(rollout):
+    _, _, _, trace, _ = rollout
+    z = trace["z"][-1]
+    assert trace["phase_h"][-1, RELEASE_AT - 1] == H_WAIT_OPEN  # holding it up, waiting for the drawer
+    assert z[RELEASE_AT - 1] > 0.10
+    assert z[-1] < 0.02  # on the table
+
+
+def test_classify_strategy(env):
+    m = {"success": jnp.array([1.0, 1.0, 1.0, 0.0, 1.0]),
+         "opened_by": jnp.array([1.0, 2.0, 1.0, 1.0, 3.0]),
+         "placed_by": jnp.array([2.0, 1.0, 1.0, 2.0, 2.0])}
+    np.testing.assert_array_equal(np.asarray(env.classify_strategy(m)), [1, 2, 0, 0, 0])
+
+
+def test_render(env, jitted):
+    img = env.render(jitted[0](env.sample_init(jax.random.PRNGKey(0))), width=64, height=48)
+    assert img.shape == (48, 64, 3) and img.dtype == np.uint8 and img.max() > 0

@@ -6,7 +6,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-METHODS = ("cogail", "ma_infogail", "ma_gail")
+METHODS = ("cogail", "ma_infogail", "ma_gail", "bc_gail", "bc_single", "diayn")
 TASK_NAMES = ("fetchq", "handover", "seqmanip")
 
 
@@ -53,6 +53,7 @@ class TrainConfig:
     history: int = 4  # K: psi reads s_{t-K..t} and a^H_{t-1}
     lambda_z: float = 1.0
     lambda_a: float = 1.0
+    diversity_coef: float = 0.1  # DIAYN: weight of the diversity reward
     lambda_spread: float = 0.0  # our addition: psi's codes of expert histories match the prior's moments (0 = off)
     lambda_r: float = 1.0  # our addition: robot-action reconstruction on expert data with psi's code (0 = paper)
     aux_lr: float = 3e-4
@@ -74,17 +75,38 @@ class TrainConfig:
     def num_updates(self) -> int:
         return max(1, self.total_steps // self.steps_per_update)
 
+    # --- method presets: which terms are on -----------------------------------------------------
     @property
-    def use_code(self) -> bool:
-        return self.method != "ma_gail"
+    def use_code(self) -> bool:  # strategy code z and psi
+        return self.method in ("cogail", "ma_infogail", "diayn")
 
     @property
-    def use_lz(self) -> bool:
+    def use_lz(self) -> bool:  # L_z through the human action mean
         return self.method in ("cogail", "ma_infogail")
 
     @property
-    def use_la(self) -> bool:
+    def use_la(self) -> bool:  # L_a on expert data
         return self.method == "cogail"
+
+    @property
+    def use_diversity(self) -> bool:  # DIAYN reward log q(z|h) - log p(z) for the co-policy
+        return self.method == "diayn"
+
+    @property
+    def bc_only(self) -> bool:  # no environment interaction, no discriminator
+        return self.method == "bc_single"
+
+    @property
+    def freeze_human(self) -> bool:  # BC-GAIL: the human tower is trained by BC only, then frozen
+        return self.method == "bc_gail"
+
+    @property
+    def use_lr(self) -> bool:  # robot-action reconstruction on expert data (our addition; all GAIL presets)
+        return self.lambda_r > 0 and not self.bc_only
+
+    @property
+    def bc_target(self) -> str:
+        return {"bc_single": "robot", "bc_gail": "human"}.get(self.method, "both")
 
     def validate(self) -> "TrainConfig":
         if self.task not in TASK_NAMES:

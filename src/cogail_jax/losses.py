@@ -86,7 +86,7 @@ def code_spread(z):
     return jnp.sum(jnp.mean(z, 0) ** 2) + jnp.sum((jnp.var(z, 0) - 1.0 / 3.0) ** 2)
 
 
-def bc_loss(psi_apply, actor_apply, params, batch, use_code, spread_coef=0.0, codes="demo"):
+def bc_loss(psi_apply, actor_apply, params, batch, use_code, spread_coef=0.0, codes="demo", target="both"):
     """Behaviour cloning of both agents' actions.
 
     ``codes="demo"``: each demonstration has a learned code (``params["codes"]``, tanh-squashed) that the
@@ -95,15 +95,33 @@ def bc_loss(psi_apply, actor_apply, params, batch, use_code, spread_coef=0.0, co
     ``codes="psi"``: the co-policy acts on psi's code of each step's history.
     """
     z_psi = psi_apply(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1))
-    target = jnp.concatenate([batch["ah"], batch["ar"]], -1)
+    if target == "both":
+        target = jnp.concatenate([batch["ah"], batch["ar"]], -1)
+        pick = lambda m: m
+    else:
+        h = batch["ah"].shape[-1]
+        target = batch["ah"] if target == "human" else batch["ar"]
+        pick = (lambda m: m[..., :h]) if target is batch["ah"] else (lambda m: m[..., h:])
     if not use_code:
         mean, _ = actor_apply(params["actor"], batch["obs"], jnp.zeros_like(z_psi))
-        return jnp.mean(jnp.sum((mean - target) ** 2, -1))
+        return jnp.mean(jnp.sum((pick(mean) - target) ** 2, -1))
     if codes == "demo":
         all_codes = jnp.tanh(params["codes"])
         z = all_codes[batch["demo"]]
         mean, _ = actor_apply(params["actor"], batch["obs"], z)
         recog = jnp.mean(jnp.sum((z_psi - jax.lax.stop_gradient(z)) ** 2, -1))
-        return jnp.mean(jnp.sum((mean - target) ** 2, -1)) + recog + 10.0 * code_spread(all_codes)
+        return jnp.mean(jnp.sum((pick(mean) - target) ** 2, -1)) + recog + 10.0 * code_spread(all_codes)
     mean, _ = actor_apply(params["actor"], batch["obs"], z_psi)
-    return jnp.mean(jnp.sum((mean - target) ** 2, -1)) + spread_coef * code_spread(z_psi)
+    return jnp.mean(jnp.sum((pick(mean) - target) ** 2, -1)) + spread_coef * code_spread(z_psi)
+
+
+def diversity_q_loss(psi_apply, params, hist_in, z):
+    """DIAYN: fit q(z | h) (psi's network) to the codes of generated data; no gradient reaches the policy."""
+    return jnp.mean(jnp.sum((psi_apply(params["psi"], hist_in) - z) ** 2, -1))
+
+
+def diversity_reward(psi_apply, params, hist_in, z):
+    """DIAYN reward log q(z|h) - log p(z) for a unit-variance Gaussian q and the uniform prior on (-1, 1)^2
+    (the constants folded in: -0.5 |q(h) - z|^2 + log 4 - log 2 pi)."""
+    d = jnp.sum((psi_apply(params["psi"], hist_in) - z) ** 2, -1)
+    return -0.5 * d + jnp.log(4.0) - jnp.log(2 * jnp.pi)

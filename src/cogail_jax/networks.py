@@ -26,10 +26,16 @@ class Actor(nn.Module):
 
     action_size: int
     init_log_std: float = -0.5
+    human_size: int = 0  # > 0: separate human and robot towers (BC-GAIL freezes the human one)
 
     @nn.compact
     def __call__(self, obs, z):
-        mean = MLP((128,) * 4, self.action_size)(jnp.concatenate([obs, z], -1))
+        x = jnp.concatenate([obs, z], -1)
+        if self.human_size:
+            mean = jnp.concatenate([MLP((128,) * 4, self.human_size, name="human")(x),
+                                    MLP((128,) * 4, self.action_size - self.human_size, name="robot")(x)], -1)
+        else:
+            mean = MLP((128,) * 4, self.action_size)(x)
         log_std = self.param("log_std", nn.initializers.constant(self.init_log_std), (self.action_size,))
         return mean, jnp.broadcast_to(log_std, mean.shape)
 

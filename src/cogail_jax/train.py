@@ -74,7 +74,7 @@ def expert_arrays(demos, history: int) -> dict[str, np.ndarray]:
 
 def make_networks(cfg: TrainConfig, env, disc_kind: str):
     return {
-        "actor": Actor(env.action_size, cfg.init_log_std),
+        "actor": Actor(env.action_size, cfg.init_log_std, env.human_action_size if cfg.freeze_human else 0),
         "critic": Critic(),
         "psi": Psi(cfg.code_dim),
         "disc": Discriminator(squash=disc_kind == "lsgan"),
@@ -106,6 +106,24 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
 
     def normalize(norm, x):
         return (x - norm["mean"]) / norm["std"]
+
+    def zero_code(_, h):  # presets without a strategy code: the co-policy always sees z = 0
+        return jnp.zeros(h.shape[:-1] + (cfg.code_dim,))
+
+    def mask_frozen_human(g_actor):
+        """BC-GAIL: no gradient reaches the human tower or the human action's log std."""
+        if not cfg.freeze_human:
+            return g_actor
+
+        def f(path, x):
+            keys = [getattr(k, "key", None) for k in path]
+            if "human" in keys:
+                return jnp.zeros_like(x)
+            if "log_std" in keys:
+                return x * (jnp.arange(x.shape[-1]) >= Ah)
+            return x
+
+        return jax.tree_util.tree_map_with_path(f, g_actor)
 
     def hist_input(norm, hist):  # (..., K+1, D) raw -> (..., (K+1) D) normalised
         h = normalize(norm, hist)
@@ -165,7 +183,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             sub, opt = carry
             b = sample_expert(state.norm, expert, key, cfg.inner_batch)
             loss, g = jax.value_and_grad(lambda p: losses.bc_loss(
-                psi, actor, p, b, cfg.use_code, cfg.lambda_spread, cfg.bc_codes))(sub)
+                psi, actor, p, b, cfg.use_code, cfg.lambda_spread, cfg.bc_codes, cfg.bc_target))(sub)
             upd, opt = tx.update(g, opt, sub)
             return (optax.apply_updates(sub, upd), opt), loss
 
@@ -193,7 +211,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             act = jnp.clip(a, -1.0, 1.0)
             nxt = jax.vmap(env.step)(env_state, act)
             done = nxt.done > 0
-            tr = {"obs": env_state.obs, "z": z, "hist": hist, "first": env_state.info["t"] == 0,
+            tr = {"obs": env_state.obs, "z": z, "hist": hist, "prev_ah": prev_ah, "first": env_state.info["t"] == 0,
                   "action": a, "act": act, "logp": logp, "value": value, "done": done.astype(jnp.float32),
                   "success": nxt.metrics["success"] * done}
             fresh = jax.vmap(env.reset)(jax.random.split(k_reset, N))
@@ -230,21 +248,29 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
 
             def aux_loss(sub):
                 p = {**params, **sub}
-                lz = losses.code_loss(psi, actor, p, gen_b, Ah) if cfg.use_lz else jnp.zeros(())
-                la, lr, spread = losses.behaviour_loss(psi, actor, p, exp_b, Ah)
-                la = la if cfg.use_la else jnp.zeros(())
-                lr = lr if cfg.lambda_r > 0 else jnp.zeros(())
-                spread = spread if (cfg.use_la and cfg.lambda_spread > 0) else jnp.zeros(())
-                total = cfg.lambda_z * lz + cfg.lambda_a * la + cfg.lambda_r * lr + cfg.lambda_spread * spread
-                return total, (lz, la, lr)
+                terms = {}
+                if cfg.use_lz:
+                    terms["loss_z"] = (cfg.lambda_z, losses.code_loss(psi, actor, p, gen_b, Ah))
+                if cfg.use_diversity:
+                    h_gen = jnp.concatenate([gen_b["hist"], gen["prev_ah"]], -1)
+                    terms["loss_q"] = (1.0, losses.diversity_q_loss(psi, p, h_gen, gen["z"]))
+                if cfg.use_la or cfg.use_lr:
+                    la, lr, spread = losses.behaviour_loss(psi if cfg.use_code else zero_code, actor, p, exp_b, Ah)
+                    if cfg.use_la:
+                        terms["loss_a"] = (cfg.lambda_a, la)
+                        if cfg.lambda_spread > 0:
+                            terms["loss_spread"] = (cfg.lambda_spread, spread)
+                    if cfg.use_lr:
+                        terms["loss_r"] = (cfg.lambda_r, lr)
+                total = sum(w * v for w, v in terms.values())
+                return total, {k: v for k, (_, v) in terms.items()}
 
             sub = {"actor": params["actor"], "psi": params["psi"]}
-            if cfg.use_lz or cfg.use_la or cfg.lambda_r > 0:
-                (_, (lz, la, lr)), g = jax.value_and_grad(aux_loss, has_aux=True)(sub)
+            aux_m = {}
+            if cfg.use_lz or cfg.use_la or cfg.use_lr or cfg.use_diversity:
+                (_, aux_m), g = jax.value_and_grad(aux_loss, has_aux=True)(sub)
                 upd, aux_opt = aux_tx.update(g, aux_opt, sub)
                 sub = optax.apply_updates(sub, upd)
-            else:
-                lz = la = lr = jnp.zeros(())
             # discriminator
             x_e = jnp.concatenate([exp_b["obs"], exp_b["ah"], exp_b["ar"]], -1)
             x_p = jnp.concatenate([normalize(norm, gen["obs"]), gen["act"]], -1)
@@ -253,7 +279,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             )(params["disc"])
             upd, disc_opt = disc_tx.update(g, disc_opt, params["disc"])
             params = {**params, **sub, "disc": optax.apply_updates(params["disc"], upd)}
-            return (params, aux_opt, disc_opt), {**dm, "loss_z": lz, "loss_a": la, "loss_r": lr}
+            return (params, aux_opt, disc_opt), {**dm, **aux_m}
 
         carry = (state.params, state.aux_opt, state.disc_opt)
         (params, aux_opt, disc_opt), m = jax.lax.scan(body, carry, jax.random.split(key, cfg.inner_updates))
@@ -262,6 +288,9 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
     def rewards(state: TrainState, traj):
         x = jnp.concatenate([normalize(state.norm, traj["obs"]), traj["act"]], -1)
         r = losses.discriminator_reward(disc(state.params["disc"], x), disc_kind)
+        if cfg.use_diversity:
+            h = jnp.concatenate([hist_input(state.norm, traj["hist"]), traj["prev_ah"]], -1)
+            r = r + cfg.diversity_coef * losses.diversity_reward(psi, state.params, h, traj["z"])
         if not cfg.reward_norm:
             return state, r, r
 
@@ -298,7 +327,8 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
                     lambda p: losses.ppo_loss(actor, critic, p, batch, cfg.clip_eps, cfg.value_coef, cfg.entropy_coef),
                     has_aux=True)(sub)
                 # critic warm-up: the actor is not moved by PPO for the first `policy_warmup` updates
-                g = {**g, "actor": jax.tree.map(lambda x: x * (state.update >= cfg.policy_warmup), g["actor"])}
+                g = {**g, "actor": mask_frozen_human(
+                    jax.tree.map(lambda x: x * (state.update >= cfg.policy_warmup), g["actor"]))}
                 upd, opt = ppo_tx.update(g, opt, sub)
                 return (optax.apply_updates(sub, upd), opt), m
 
@@ -309,7 +339,28 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         (sub, opt), m = jax.lax.scan(epoch, (sub, state.ppo_opt), jax.random.split(key, cfg.ppo_epochs))
         return state.replace(params={**state.params, **sub}, ppo_opt=opt), jax.tree.map(jnp.mean, m)
 
+    def bc_step(state: TrainState, expert):
+        """BC-single: supervised updates of the robot on the demonstrations; no rollout, no discriminator."""
+        rng, key = jax.random.split(state.rng)
+
+        def body(carry, key):
+            sub, opt = carry
+            b = sample_expert(state.norm, expert, key, cfg.inner_batch)
+            loss, g = jax.value_and_grad(lambda p: losses.bc_loss(
+                psi, actor, p, b, False, target="robot"))(sub)
+            upd, opt = aux_tx.update(g, opt, sub)
+            return (optax.apply_updates(sub, upd), opt), loss
+
+        sub = {"actor": state.params["actor"], "psi": state.params["psi"]}
+        (sub, opt), bc = jax.lax.scan(body, (sub, state.aux_opt),
+                                      jax.random.split(key, cfg.ppo_epochs * cfg.num_minibatches))
+        state = state.replace(params={**state.params, **sub}, aux_opt=opt, rng=rng, update=state.update + 1)
+        finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(state.params)]))
+        return state, {"bc_loss": bc.mean(), "nonfinite": (~finite).astype(jnp.float32)}
+
     def train_step(state: TrainState, expert):
+        if cfg.bc_only:
+            return bc_step(state, expert)
         rng, k_roll, k_inner, k_ppo = jax.random.split(state.rng, 4)
         state = state.replace(rng=rng)
         state, traj, last_value = rollout(state, k_roll)

@@ -151,11 +151,12 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
                 ckpt.save(mgr, update, state)
             el = time.time() - t_start
             bar.update(upc)
-            bar.set_postfix({"env_steps/s": f"{steps_done / el:.3g}" if el > 0 and steps_done else "-",
-                             "succ": f"{metrics['episode_success'][-1].mean():.2f}",
-                             "d_loss": f"{metrics['disc_loss'][-1].mean():.3f}",
-                             "L_z": f"{metrics['loss_z'][-1].mean():.3f}",
-                             "L_a": f"{metrics['loss_a'][-1].mean():.3f}"})
+            post = {"env_steps/s": f"{steps_done / el:.3g}" if el > 0 and steps_done else "-"}
+            for key, short in (("episode_success", "succ"), ("disc_loss", "d_loss"), ("loss_z", "L_z"),
+                               ("loss_a", "L_a"), ("bc_loss", "bc")):
+                if key in metrics:
+                    post[short] = f"{metrics[key][-1].mean():.3f}"
+            bar.set_postfix(post)
     finally:
         bar.close()
         for w in writers:

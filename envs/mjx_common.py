@@ -56,10 +56,10 @@ __all__ = [
     "N_GRIPPER_ACT", "N_SUBSTEPS", "TIMESTEP", "POS_SCALE", "ROT_SCALE", "MAX_GAP",
     "GripperSpec", "gripper_body_xml", "gripper_actuator_xml", "gripper_tendon_xml",
     "gripper_equality_xml", "gripper_pairs_xml", "gripper_sensors_xml", "free_box_xml",
-    "pair_xml", "table_xml", "scene_xml", "build",
+    "pair_xml", "camera_xml", "table_xml", "scene_xml", "build",
     "Gripper", "apply_gripper_action", "physics_step", "rot6d", "tcp_pos", "tcp_mat",
     "tcp_pose_base", "to_base", "finger_gap", "touching", "is_grasping", "body_pos",
-    "body_mat", "make_data", "quat_to_mat", "yaw_of", "wrap_angle",
+    "body_mat", "make_data", "quat_to_mat", "yaw_of", "wrap_angle", "FrameRenderer",
 ]
 
 N_GRIPPER_ACT = 7
@@ -169,8 +169,8 @@ def pair_xml(g1: str, g2: str, friction: float = 1.0, condim: int = 3, margin: f
 def gripper_pairs_xml(s: GripperSpec, geom: str, palm: bool = True) -> str:
     """Contact pairs between the gripper's finger pads (and palm) and ``geom``."""
     n = s.name
-    out = [pair_xml(f"{n}_fl", geom, s.finger_friction, condim=4, margin=0.001, torsion=0.05),
-           pair_xml(f"{n}_fr", geom, s.finger_friction, condim=4, margin=0.001, torsion=0.05)]
+    out = [pair_xml(f"{n}_fl", geom, s.finger_friction, condim=4, torsion=0.05),
+           pair_xml(f"{n}_fr", geom, s.finger_friction, condim=4, torsion=0.05)]
     if palm:
         out.append(pair_xml(f"{n}_palm", geom, 0.5))
     return "".join(out)
@@ -188,6 +188,17 @@ def free_box_xml(name: str, pos: Sequence[float], half: Sequence[float], mass: f
     """A free-floating box body ``name`` with one geom ``name`` (radians yaw)."""
     return (f'<body name="{name}" pos="{_fmt(pos)}" euler="0 0 {yaw:.6g}"><freejoint name="{name}"/>'
             f'<geom name="{name}" type="box" size="{_fmt(half)}" mass="{mass:g}" rgba="{_fmt(rgba)}"/></body>')
+
+
+def camera_xml(name: str, pos: Sequence[float], target: Sequence[float]) -> str:
+    """A fixed camera at ``pos`` looking at ``target`` (z up)."""
+    pos, target = np.asarray(pos, float), np.asarray(target, float)
+    f = target - pos
+    f /= np.linalg.norm(f)
+    x = np.cross(f, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(x, f)
+    return f'<camera name="{name}" pos="{_fmt(pos)}" xyaxes="{_fmt(x)} {_fmt(y)}"/>'
 
 
 def table_xml(half: Sequence[float] = (0.6, 0.6), height: float = 0.4) -> str:
@@ -223,9 +234,9 @@ def scene_xml(name: str, grippers: Sequence[GripperSpec], worldbody: str = "", c
     <headlight ambient="0.4 0.4 0.4" diffuse="0.6 0.6 0.6"/></visual>
   <worldbody>
     <light pos="0 0 1.5" dir="0 0 -1" directional="true"/>
-    <camera name="side" pos="1.1 0 0.55" xyaxes="0 1 0 -0.45 0 0.89"/>
+    {camera_xml("side", (1.05, -0.75, 0.5), (0.0, 0.0, 0.15))}
+    {camera_xml("front", (0.0, -1.05, 0.55), (0.0, 0.0, 0.12))}
     <camera name="top" pos="0 0 1.3" xyaxes="1 0 0 0 1 0"/>
-    <camera name="human" pos="0 -1.0 0.6" xyaxes="1 0 0 0 0.5 0.866"/>
     {table_xml()}
     {bodies}
     {worldbody}
@@ -388,3 +399,99 @@ def yaw_of(mat: jax.Array) -> jax.Array:
 def wrap_angle(a: jax.Array, period: float = 2 * np.pi) -> jax.Array:
     """Wrap to [-period/2, period/2)."""
     return (a + period / 2) % period - period / 2
+
+
+# ----------------------------------------------------------------------------------------------------
+# Rendering (host side, numpy; not jitted)
+# ----------------------------------------------------------------------------------------------------
+
+class FrameRenderer:
+    """Offscreen RGB frames of a model: ``FrameRenderer(m)(mj_data, width, height, camera)``.
+
+    Uses ``mujoco.Renderer`` when MuJoCo can make its own context (``MUJOCO_GL`` = egl/osmesa when
+    ``mujoco`` was imported, or a display). Otherwise (the usual headless case: ``mujoco`` imported
+    before anybody set ``MUJOCO_GL``) it creates an EGL context by hand and renders with the low-level
+    ``mjr_*`` API. Without any OpenGL it falls back to a matplotlib top + side projection of the boxes.
+    """
+
+    def __init__(self, m: mujoco.MjModel):
+        self.m = m
+        self._cache = None  # ((width, height), renderer, gl context or None)
+
+    def __call__(self, d: mujoco.MjData, width: int = 320, height: int = 240, camera: str = "side") -> np.ndarray:
+        try:
+            rend, ctx = self._get(width, height)
+        except Exception:  # no OpenGL at all
+            return _render_mpl(self.m, d, width, height)
+        if ctx is not None:
+            ctx.make_current()
+        rend.update_scene(d, camera=camera)
+        return np.asarray(rend.render(), np.uint8)
+
+    def _get(self, width: int, height: int):
+        if self._cache is None or self._cache[0] != (width, height):
+            if _default_gl_usable():
+                rend, ctx = mujoco.Renderer(self.m, height, width), None
+            else:
+                from mujoco.egl import GLContext
+                ctx = GLContext(width, height)
+                ctx.make_current()
+                rend = _LowLevelRenderer(self.m, width, height)
+            self._cache = ((width, height), rend, ctx)
+        return self._cache[1], self._cache[2]
+
+
+def _default_gl_usable() -> bool:
+    """Whether ``mujoco.Renderer`` can make its own context (EGL/OSMesa chosen, or a display present)."""
+    import os
+    from mujoco.rendering.classic import gl_context
+    backend = getattr(gl_context, "_MUJOCO_GL", "")
+    return backend in ("egl", "osmesa") or bool(os.environ.get("DISPLAY"))
+
+
+class _LowLevelRenderer:
+    """Minimal offscreen renderer on an already-current GL context."""
+
+    def __init__(self, m: mujoco.MjModel, width: int, height: int):
+        self.m, self.w, self.h = m, width, height
+        self.scene = mujoco.MjvScene(m, maxgeom=1000)
+        self.opt = mujoco.MjvOption()
+        self.cam = mujoco.MjvCamera()
+        self.con = mujoco.MjrContext(m, mujoco.mjtFontScale.mjFONTSCALE_150)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self.con)
+        self.rect = mujoco.MjrRect(0, 0, width, height)
+
+    def update_scene(self, d: mujoco.MjData, camera: str):
+        self.cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        self.cam.fixedcamid = mujoco.mj_name2id(self.m, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+        mujoco.mjv_updateScene(self.m, d, self.opt, None, self.cam, mujoco.mjtCatBit.mjCAT_ALL, self.scene)
+
+    def render(self) -> np.ndarray:
+        mujoco.mjr_render(self.rect, self.scene, self.con)
+        img = np.empty((self.h, self.w, 3), np.uint8)
+        mujoco.mjr_readPixels(img, None, self.rect, self.con)
+        return img[::-1]
+
+
+def _render_mpl(m: mujoco.MjModel, d: mujoco.MjData, width: int, height: int) -> np.ndarray:
+    """Fallback: top (x-y) and side (y-z) projections of the bodies' box geoms with matplotlib."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(width / 80, height / 80), dpi=80)
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+    for ax, (i, j), title in ((axes[0], (0, 1), "top"), (axes[1], (1, 2), "side")):
+        for g in range(m.ngeom):
+            if m.geom_type[g] != mujoco.mjtGeom.mjGEOM_BOX or m.geom_bodyid[g] == 0:
+                continue
+            pts = d.geom_xpos[g] + (corners * m.geom_size[g]) @ d.geom_xmat[g].reshape(3, 3).T
+            lo, hi = pts[:, [i, j]].min(0), pts[:, [i, j]].max(0)
+            ax.add_patch(plt.Rectangle(lo, *(hi - lo), color=m.geom_rgba[g][:3]))
+        ax.set_xlim(-0.5, 0.5)
+        ax.set_ylim(*((-0.5, 0.5) if title == "top" else (-0.05, 0.5)))
+        ax.set_aspect("equal")
+        ax.set_title(title)
+    fig.canvas.draw()
+    img = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    plt.close(fig)
+    return img

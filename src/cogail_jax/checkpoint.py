@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import logging
+import shutil
+import time
 from pathlib import Path
 
 import orbax.checkpoint as ocp
@@ -39,11 +41,24 @@ def restore(mgr: ocp.CheckpointManager, step: int, abstract_state):
         raise CheckpointError(f"checkpoint {step} in {mgr.directory} is unreadable ({type(e).__name__})") from e
 
 
+def quarantine(mgr: ocp.CheckpointManager, step: int) -> Path:
+    """Move an unreadable checkpoint aside (never delete what a user made) so it can be rewritten."""
+    src = Path(mgr.directory) / str(step)
+    dst_dir = Path(mgr.directory).parent / "corrupt_checkpoints"
+    dst_dir.mkdir(exist_ok=True)
+    dst = dst_dir / f"{step}.{int(time.time())}"
+    shutil.move(str(src), str(dst))
+    mgr.reload()
+    return dst
+
+
 def restore_latest_valid(mgr: ocp.CheckpointManager, abstract_state, log=print):
-    """Restore the newest readable checkpoint; say which ones were skipped. Returns (step, state) or (None, None)."""
+    """Restore the newest readable checkpoint. Unreadable ones are reported and moved to
+    ``corrupt_checkpoints/``. Returns (step, state) or (None, None)."""
     for step in reversed(steps(mgr)):
         try:
             return step, restore(mgr, step, abstract_state)
         except CheckpointError as e:
-            log(f"warning: {e}; trying the previous one")
+            dst = quarantine(mgr, step)
+            log(f"warning: {e}; moved it to {dst} and trying the previous one")
     return None, None

@@ -1,0 +1,203 @@
+"""Runs survive kills, bad files and numerical blow-ups without losing work."""
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import jax
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cogail_jax import checkpoint as ckpt
+from cogail_jax import data, train, trainer
+
+
+
+
+def _params(run_dir, cfg):
+    s = trainer.build(cfg, need_heldout=False)
+    mgr = ckpt.manager(run_dir)
+    abstract = jax.eval_shape(lambda: s.init(cfg.seeds, s.expert))
+    out = {}
+    for step in ckpt.steps(mgr):  # every listed checkpoint must be readable
+        out[step] = jax.tree.leaves(jax.device_get(ckpt.restore(mgr, step, abstract).params))
+    return out
+
+
+@pytest.fixture(scope="module")
+def kill_cfg(tiny_cfg):
+    return tiny_cfg.replace(seeds=(7,), total_steps=4 * 16 * 24, checkpoint_every=2, updates_per_call=2)
+
+
+@pytest.fixture(scope="module")
+def reference(kill_cfg, tmp_path_factory):
+    run = tmp_path_factory.mktemp("ref") / "run"
+    trainer.train_run(kill_cfg, run, progress=False)
+    return _params(run, kill_cfg)
+
+
+def _start(cfg_file, run, resume):
+    args = [sys.executable, "-m", "cogail_jax.cli", "train", "--config", str(cfg_file), "--run", str(run), "--no-progress"]
+    return subprocess.Popen(args + (["--resume"] if resume else []), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            start_new_session=True)
+
+
+def _wait_for_step(run, step, proc, timeout=120):
+    t0 = time.time()
+    while time.time() - t0 < timeout and proc.poll() is None:
+        d = Path(run) / "checkpoints"
+        if d.exists() and any(p.name.isdigit() and int(p.name) >= step for p in d.iterdir()):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def test_kill_9_then_resume_matches_uninterrupted(kill_cfg, reference, tmp_path):
+    cfg_file = tmp_path / "cfg.json"
+    cfg_file.write_text(kill_cfg.to_json())
+    run = tmp_path / "run"
+    rng = random.Random(0)
+    kills = 0
+    # kill 1: at a random moment of start-up / compilation; kills 2-3: at random moments of training
+    for target in (None, 4, 12):
+        proc = _start(cfg_file, run, resume=(run / "config.json").exists())
+        if target is None:
+            time.sleep(rng.uniform(1.0, 6.0))
+        else:
+            assert _wait_for_step(run, target, proc), proc.stderr.read().decode()[-2000:]
+            time.sleep(rng.uniform(0.0, 0.3))
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            kills += 1
+        proc.wait()
+    assert kills >= 2
+    proc = _start(cfg_file, run, resume=True)
+    assert proc.wait(timeout=600) == 0, proc.stderr.read().decode()[-2000:]
+    got = _params(run, kill_cfg)  # every checkpoint left behind is readable
+    last = max(reference)
+    assert max(got) == last
+    for a, b in zip(reference[last], got[last]):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_corrupt_latest_checkpoint_is_skipped(kill_cfg, reference, tmp_path, capsys):
+    run = tmp_path / "run"
+    trainer.train_run(kill_cfg, run, progress=False, stop_after=6)
+    latest = Path(run) / "checkpoints" / "6"
+    for f in latest.rglob("*"):
+        if f.is_file() and f.stat().st_size > 0:
+            f.write_bytes(b"\0garbage" * 3)
+    trainer.train_run(kill_cfg, run, resume=True, progress=False)
+    out = capsys.readouterr().out
+    assert "checkpoint 6" in out and "unreadable" in out and "resuming" in out
+    assert any((Path(run) / "corrupt_checkpoints").iterdir())  # moved aside, not deleted
+    got = _params(run, kill_cfg)
+    last = max(reference)
+    for a, b in zip(reference[last], got[last]):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_nonfinite_stops_and_keeps_last_good_checkpoint(kill_cfg, tmp_path, monkeypatch):
+    real = train.fit_normalizer
+
+    def broken(expert):
+        stats = real(expert)
+        return {**stats, "std": np.zeros_like(stats["std"])}  # 0/0 in the observations -> NaN
+
+    monkeypatch.setattr(train, "fit_normalizer", broken)
+    run = tmp_path / "run"
+    with pytest.raises(trainer.RunError, match=r"diverged at update \d+"):
+        trainer.train_run(kill_cfg, run, progress=False)
+    assert ckpt.steps(ckpt.manager(run)) == [0]
+
+
+def test_same_seed_same_metrics(tiny_cfg, fetchq):
+    demos = data.load_demos(tiny_cfg.demos, fetchq)
+    expert = train.expert_arrays(demos, tiny_cfg.history)
+    init, chunk, _ = train.make_train_fns(tiny_cfg, fetchq, train.fit_normalizer(expert))
+    runs = []
+    for _ in range(2):
+        s = init(tiny_cfg.seeds, expert)
+        s, m = chunk(s, expert)
+        runs.append(jax.device_get(m))
+    for k in runs[0]:
+        np.testing.assert_array_equal(runs[0][k], runs[1][k])
+
+
+def test_config_errors(tiny_cfg):
+    from cogail_jax.config import ConfigError
+
+    for bad in (dict(task="nope"), dict(method="nope"), dict(total_steps=0), dict(num_envs=-1),
+                dict(checkpoint_every=0), dict(seeds=())):
+        with pytest.raises(ConfigError):
+            tiny_cfg.replace(**bad).validate()
+
+
+def test_resume_into_run_of_another_task(tiny_cfg, tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({**json.loads(tiny_cfg.to_json()), "task": "handover"}))
+    with pytest.raises(trainer.RunError, match="handover"):
+        trainer.train_run(tiny_cfg, run, resume=True, progress=False)
+
+
+# ---------------------------------------------------------------- property-based: demonstration files
+_arrays = st.fixed_dictionaries({
+    "T": st.integers(0, 6),
+    "obs_dim": st.sampled_from([13, 13, 12, 1]),
+    "ah_dim": st.sampled_from([2, 2, 3]),
+    "ar_dim": st.sampled_from([2, 2, 0]),
+    "drop": st.sampled_from([None, None, "obs", "actions_human", "actions_robot"]),
+    "nan": st.booleans(),
+    "dtype": st.sampled_from(["f4", "f8", "i4", "S3"]),
+    "ndim": st.sampled_from([2, 2, 1, 3]),
+})
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(demos=st.lists(_arrays, min_size=0, max_size=3), task=st.sampled_from(["fetchq", "fetchq", "handover", None]))
+def test_loader_never_crashes_on_bad_files(demos, task, fetchq, tmp_path_factory):
+    path = tmp_path_factory.mktemp("h") / "f.hdf5"
+    valid = bool(demos) and task in ("fetchq", None)
+    with h5py.File(path, "w") as f:
+        if task:
+            f.attrs["task"] = task
+        g = f.create_group("data")
+        for i, d in enumerate(demos):
+            dg = g.create_group(f"demo_{i}")
+            for key, dim in (("obs", d["obs_dim"]), ("actions_human", d["ah_dim"]), ("actions_robot", d["ar_dim"])):
+                if d["drop"] == key:
+                    continue
+                shape = {2: (d["T"], dim), 1: (d["T"],), 3: (d["T"], dim, 1)}[d["ndim"]]
+                if d["dtype"] == "S3":
+                    arr = np.full(shape, b"abc")
+                else:
+                    arr = np.ones(shape, d["dtype"])
+                    if d["nan"] and arr.size and d["dtype"].startswith("f"):
+                        arr.flat[0] = np.nan
+                dg.create_dataset(key, data=arr)
+            ok = (d["drop"] is None and d["T"] > 0 and d["obs_dim"] == 13 and d["ah_dim"] == 2 and d["ar_dim"] == 2
+                  and not (d["nan"] and d["dtype"].startswith("f")) and d["dtype"] != "S3" and d["ndim"] == 2)
+            valid = valid and ok
+    if valid:
+        assert data.load_demos(path, fetchq).num == len(demos)
+    else:
+        with pytest.raises(data.DatasetError) as e:
+            data.load_demos(path, fetchq)
+        assert str(path) in str(e.value) and "\n" not in str(e.value)
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(blob=st.binary(min_size=0, max_size=2048))
+def test_loader_rejects_garbage_bytes(blob, fetchq, tmp_path_factory):
+    path = tmp_path_factory.mktemp("g") / "junk.hdf5"
+    path.write_bytes(blob)
+    with pytest.raises(data.DatasetError, match="junk.hdf5"):
+        data.load_demos(path, fetchq)

@@ -10,7 +10,7 @@ BUDGET ?= paper
 RUN ?= runs/$(TASK)-$(METHOD)-$(BUDGET)
 EXTRA ?=
 
-.PHONY: install train eval test demos video bench clean help
+.PHONY: install train eval test demos video bench clean help paper
 
 help:
 	@echo "make train [TASK=fetchq|handover|seqmanip] [METHOD=cogail|ma_infogail|ma_gail] [SEEDS=300,400,500] [BUDGET=paper|quick] [RUN=dir]"
@@ -44,3 +44,13 @@ test: install
 
 clean:
 	rm -rf runs .pytest_cache
+
+# The paper's tables (Table 1 replay, Table 2 interpolation, Fig. 3) for TASKS x METHODS, 3 seeds each.
+TASKS ?= fetchq
+METHODS ?= cogail,ma_infogail,ma_gail,bc_gail,bc_single,diayn
+MIXES ?= uniform
+paper: install
+	$(BIN)/python experiments/paper.py --tasks $(TASKS) --methods $(METHODS) --mixes $(MIXES) --out results/paper
+
+bench: install
+	$(BIN)/python -m cogail_jax.bench $(TASK) runs/bench-$(TASK).json

@@ -56,7 +56,8 @@ def train_throughput(cfg, env, expert, norm, calls: int = 3) -> dict:
             "updates_per_s": calls * cfg.updates_per_call / dt, "compile_s": compile_s}
 
 
-def main(task: str = "fetchq", sizes=(64, 1024, 8192), out: str | None = None) -> list[dict]:
+def main(task: str = "fetchq", sizes=(64, 1024, 8192), out: str | None = None, env_only: bool = False,
+         steps: int = 200) -> list[dict]:
     import cogail_envs
 
     from . import data, train
@@ -65,9 +66,12 @@ def main(task: str = "fetchq", sizes=(64, 1024, 8192), out: str | None = None) -
     env = cogail_envs.make_env(task)
     rows = []
     for n in sizes:
-        r = env_throughput(env, n)
+        r = env_throughput(env, n, steps=steps)
         rows.append({"task": task, "kind": "env-only", **r})
         print(json.dumps(rows[-1]), flush=True)
+    if env_only:
+        _table(rows, out)
+        return rows
     demos = data.load_demos(data.ensure_default_demos(env, "train"), env)
     base = TrainConfig(task=task)
     expert = train.expert_arrays(demos, base.history)
@@ -78,16 +82,31 @@ def main(task: str = "fetchq", sizes=(64, 1024, 8192), out: str | None = None) -
             r = train_throughput(cfg, env, expert, norm)
             rows.append({"task": task, "kind": "co-gail train_step", **r})
             print(json.dumps(rows[-1]), flush=True)
+    _table(rows, out)
+    return rows
+
+
+def _table(rows, out):
     print(f"{'task':9} {'kind':20} {'envs':>6} {'seeds':>5} {'env steps/s':>12} {'compile s':>9}")
     for r in rows:
         print(f"{r['task']:9} {r['kind']:20} {r['num_envs']:>6} {r.get('seeds', 1):>5} "
               f"{r['env_steps_per_s']:>12.3g} {r['compile_s']:>9.1f}")
     if out:
         Path(out).write_text(json.dumps({"device": str(jax.devices()[0]), "rows": rows}, indent=2))
-    return rows
+
+
+def cli(argv=None):
+    import argparse
+
+    p = argparse.ArgumentParser(prog="python -m cogail_jax.bench", description="Throughput table (env steps/s).")
+    p.add_argument("task", nargs="?", default="fetchq")
+    p.add_argument("out", nargs="?", default=None, help="JSON output path")
+    p.add_argument("--sizes", default="64,1024,8192", help="comma-separated batch sizes")
+    p.add_argument("--steps", type=int, default=200, help="env steps per timed call")
+    p.add_argument("--env-only", action="store_true", help="skip the train_step rows")
+    a = p.parse_args(argv)
+    main(a.task, tuple(int(x) for x in a.sizes.split(",")), a.out, a.env_only, a.steps)
 
 
 if __name__ == "__main__":
-    import sys
-
-    main(sys.argv[1] if len(sys.argv) > 1 else "fetchq", out=sys.argv[2] if len(sys.argv) > 2 else None)
+    cli()

@@ -6,6 +6,9 @@ import shutil
 import time
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
+import numpy as np
 import orbax.checkpoint as ocp
 
 logging.getLogger("absl").setLevel(logging.ERROR)
@@ -22,11 +25,24 @@ def manager(run_dir: str | Path) -> ocp.CheckpointManager:
     )
 
 
+def _empty(x) -> bool:
+    return int(np.prod(x.shape)) == 0
+
+
+def _fill_empty(tree):
+    """Orbax cannot store zero-size arrays (MJX's ``mjx.Data`` has some): store a 1-element stand-in."""
+    return jax.tree.map(lambda x: np.zeros((1,), x.dtype) if _empty(x) else x, tree)
+
+
+def _abstract_for_disk(abstract):
+    return jax.tree.map(lambda a: jax.ShapeDtypeStruct((1,), a.dtype) if _empty(a) else a, abstract)
+
+
 def save(mgr: ocp.CheckpointManager, step: int, state) -> None:
     """Write atomically (Orbax writes to a temporary folder and renames it when complete)."""
     if step in mgr.all_steps():
         return
-    mgr.save(int(step), args=ocp.args.StandardSave(state))
+    mgr.save(int(step), args=ocp.args.StandardSave(_fill_empty(state)))
     mgr.wait_until_finished()
 
 
@@ -36,7 +52,8 @@ def steps(mgr: ocp.CheckpointManager) -> list[int]:
 
 def restore(mgr: ocp.CheckpointManager, step: int, abstract_state):
     try:
-        return mgr.restore(int(step), args=ocp.args.StandardRestore(abstract_state))
+        disk = mgr.restore(int(step), args=ocp.args.StandardRestore(_abstract_for_disk(abstract_state)))
+        return jax.tree.map(lambda d, a: jnp.zeros(a.shape, a.dtype) if _empty(a) else d, disk, abstract_state)
     except Exception as e:  # noqa: BLE001 - any failure means this checkpoint is unusable
         raise CheckpointError(f"checkpoint {step} in {mgr.directory} is unreadable ({type(e).__name__})") from e
 

@@ -44,6 +44,7 @@ class Demos:
     init: np.ndarray | None  # (N, init_dim) or None
     task: str
     path: str = ""
+    metrics: dict | None = None  # name -> (N,) final episode metrics recorded by the generator (optional)
 
     @property
     def num(self) -> int:
@@ -71,6 +72,8 @@ def save_demos(path: str | os.PathLike, env, episodes, mixture: str = "uniform",
             g.create_dataset("init", data=np.asarray(episodes.init[i], np.float32))
             g.attrs["strategy"] = int(episodes.strategy[i])
             g.attrs["num_samples"] = n
+            for k, v in (episodes.final_metrics or {}).items():  # e.g. the handover spot
+                g.attrs[f"metric_{k}"] = float(np.asarray(v)[i])
     os.replace(tmp, path)
     return path
 
@@ -106,7 +109,7 @@ def load_demos(path: str | os.PathLike, env, require_init: bool = False) -> Demo
         dims = {"obs": env.observation_size, "actions_human": env.human_action_size,
                 "actions_robot": env.robot_action_size}
         arrays: dict[str, list[np.ndarray]] = {k: [] for k in dims}
-        inits, strategies, lengths = [], [], []
+        inits, strategies, lengths, metrics = [], [], [], []
         for name in names:
             g = f["data"][name]
             at = f"{where}, demo {name}"
@@ -136,6 +139,7 @@ def load_demos(path: str | os.PathLike, env, require_init: bool = False) -> Demo
                 raise DatasetError(f"{at}: attr num_samples={int(n)} but the arrays have {T} steps")
             lengths.append(T)
             strategies.append(int(g.attrs.get("strategy", 0)))
+            metrics.append({k[7:]: float(v) for k, v in g.attrs.items() if k.startswith("metric_")})
             if "init" in g:
                 init = np.asarray(g["init"][()], np.float32).reshape(-1)
                 if init.shape != (env.init_size,) or not np.all(np.isfinite(init)):
@@ -160,6 +164,7 @@ def load_demos(path: str | os.PathLike, env, require_init: bool = False) -> Demo
         init=np.stack(inits) if len(inits) == N else None,
         task=env.name,
         path=str(path),
+        metrics={k: np.asarray([m.get(k, np.nan) for m in metrics]) for k in metrics[0]} if metrics[0] else None,
     )
 
 

@@ -212,6 +212,34 @@ def write_figures(run_dir: Path, res: dict, latent: np.ndarray | None, latent_st
     return out
 
 
+def write_handover_spots(run_dir: Path, res: dict, interp_metrics: dict, interp_success, demo_metrics) -> Path:
+    """Handover spots of successful interpolation rollouts beside the demonstrations' spots: top (XY) and
+    side (XZ) views (paper Fig. 4a)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = np.asarray(interp_success) > 0
+    fig, axes = plt.subplots(1, 2, figsize=(9, 4))
+    for ax, (a, b, label) in zip(axes, (("x", "y", "top view (XY)"), ("x", "z", "side view (XZ)"))):
+        if demo_metrics is not None and f"handover_{a}" in demo_metrics:
+            ax.scatter(demo_metrics[f"handover_{a}"], demo_metrics[f"handover_{b}"], s=10, c="lightgray",
+                       label="demonstrations")
+        xs = np.asarray(interp_metrics[f"handover_{a}"]).reshape(-1)[ok.reshape(-1)]
+        ys = np.asarray(interp_metrics[f"handover_{b}"]).reshape(-1)[ok.reshape(-1)]
+        ax.scatter(xs, ys, s=14, c="tab:green", label=f"{res['method']} interpolation ({ok.sum()} successes)")
+        ax.set_xlabel(f"{a} (m)")
+        ax.set_ylabel(f"{b} (m)")
+        ax.set_title(label)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    p = run_dir / "handover_spots.png"
+    fig.savefig(p, dpi=120)
+    plt.close(fig)
+    return p
+
+
 def save_results(run_dir: Path, res: dict) -> None:
     (run_dir / "results.json").write_text(json.dumps(res, indent=2))
     (run_dir / "results.md").write_text(results_markdown(res))

@@ -31,6 +31,7 @@ class Setup:
     init: object
     chunk: object
     nets: dict
+    train_metrics: dict | None = None
 
 
 def effective_updates_per_call(cfg: TrainConfig) -> int:
@@ -56,7 +57,7 @@ def build(cfg: TrainConfig, need_heldout: bool = True) -> Setup:
         hpath = cfg.heldout or data.ensure_default_demos(env, "heldout", cfg.mix)
         heldout = evaluate.heldout_arrays(data.load_demos(hpath, env, require_init=True))
     init, chunk, nets = train.make_train_fns(cfg, env, train.fit_normalizer(expert))
-    return Setup(cfg, env, expert, heldout, init, chunk, nets)
+    return Setup(cfg, env, expert, heldout, init, chunk, nets, demos.metrics)
 
 
 def run_metadata() -> dict:
@@ -205,6 +206,13 @@ def eval_run(run_dir: str | Path, progress: bool = True) -> dict:
                          "strategy": np.asarray(s.heldout["strategy"]).tolist()}
     evaluate.save_results(run_dir, res)
     evaluate.write_figures(run_dir, res, lat, np.asarray(s.heldout["strategy"]), s.env.strategy_names)
+    best_i = [res["best_checkpoint"][str(sd)]["interpolation"] for sd in cfg.seeds]
+    first = per_ckpt[best_i[0]]["interp_metrics"]
+    if "handover_x" in first:  # HR-Handover: where the handovers happened (paper Fig. 4a)
+        im = {k: np.stack([per_ckpt[b]["interp_metrics"][k][i] for i, b in enumerate(best_i)])
+              for k in ("handover_x", "handover_y", "handover_z")}
+        succ = np.stack([per_ckpt[b]["interp_success"][i] for i, b in enumerate(best_i)])
+        evaluate.write_handover_spots(run_dir, res, im, succ, s.train_metrics)
     return res
 
 

@@ -3,7 +3,7 @@
 set -uo pipefail
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || exit 1
 mkdir -p /tmp/pk && ln -sfn "$PWD/envs" /tmp/pk/cogail_envs
-export PYTHONPATH=$PWD/src:/tmp/pk:/tmp/site PYTHONUNBUFFERED=1 COGAIL_DATA=/tmp/data MUJOCO_GL=egl
+export PYTHONPATH=$PWD/src:/tmp/pk:/tmp/site PYTHONUNBUFFERED=1 COGAIL_DATA=/tmp/data
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"
 TASK=${TASK:-handover}
 timeout ${BENCH_T:-150} python3 -m cogail_jax.bench $TASK "$OUT/bench-$TASK-env.json" --env-only --sizes ${SIZES:-8192,32768} --steps 100 2>&1 | tail -4

@@ -73,6 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Interpolation and replay evaluation of every checkpoint and seed; writes "
                                    "results.json, results.md and figures into the run directory.")
     e.add_argument("--run", required=True, help="run directory")
+    e.add_argument("--every", type=_positive, default=1, help="evaluate every k-th checkpoint (default 1: all)")
     e.add_argument("--no-progress", action="store_true")
 
     v = sub.add_parser("video", help="render scripted demonstrations or a run's interpolation rollouts",
@@ -203,7 +204,7 @@ def _dispatch(a) -> int:
     if a.command == "eval":
         from .trainer import eval_run
 
-        eval_run(a.run, progress=not a.no_progress)
+        eval_run(a.run, progress=not a.no_progress, every=a.every)
         print((Path(a.run) / "results.md").read_text())
         return 0
     if a.command == "video":

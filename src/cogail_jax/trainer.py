@@ -170,7 +170,7 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
     return run_dir
 
 
-def eval_run(run_dir: str | Path, progress: bool = True) -> dict:
+def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1) -> dict:
     """Evaluate every checkpoint of a run; write results.json / results.md and figures into the run dir."""
     run_dir = Path(run_dir)
     if not (run_dir / "config.json").exists():
@@ -180,6 +180,8 @@ def eval_run(run_dir: str | Path, progress: bool = True) -> dict:
     cfg = s.cfg
     mgr = ckpt.manager(run_dir)
     steps = [st for st in ckpt.steps(mgr) if st > 0] or ckpt.steps(mgr)
+    if every > 1:  # evaluate every k-th checkpoint (and always the last)
+        steps = sorted(set(steps[every - 1::every]) | {steps[-1]})
     if not steps:
         raise RunError(f"{run_dir} has no checkpoints yet: train it first")
     abstract = jax.eval_shape(lambda: s.init(cfg.seeds, s.expert))

@@ -53,4 +53,4 @@ paper: install
 	$(BIN)/python experiments/paper.py --tasks $(TASKS) --methods $(METHODS) --mixes $(MIXES) --out results/paper
 
 bench: install
-	$(BIN)/python -m cogail_jax.bench $(TASK) runs/bench-$(TASK).json
+	$(BIN)/cogail bench $(TASK) runs/bench-$(TASK).json

@@ -6,7 +6,7 @@ import pytest
 from cogail_jax import cli
 
 
-@pytest.mark.parametrize("cmd", [[], ["demos"], ["train"], ["eval"], ["video"]])
+@pytest.mark.parametrize("cmd", [[], ["demos"], ["train"], ["eval"], ["video"], ["bench"]])
 def test_help(cmd, capsys):
     with pytest.raises(SystemExit) as e:
         cli.main([*cmd, "--help"])
@@ -45,3 +45,20 @@ def test_user_errors_are_one_clear_line(args, needle, tmp_path):
 def test_bad_flags(args):
     r = run(*args)
     assert r.returncode == 2 and "Traceback" not in r.stderr
+
+
+def test_bench_tiny_writes_json(tmp_path, monkeypatch):
+    import json
+
+    from cogail_jax import bench, data
+
+    monkeypatch.setenv("COGAIL_DATA", str(tmp_path / "data"))
+    monkeypatch.setitem(data.DEFAULT_NUM, "fetchq", 4)
+    out = tmp_path / "bench.json"
+    assert cli.main(["bench", "fetchq", str(out), "--sizes", "4", "--steps", "4", "--unroll", "8", "--calls", "1"]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    kinds = [r["kind"] for r in rows]
+    assert kinds == ["env-only", "co-gail train_step", "co-gail train_step", "brax ppo (peer)"]
+    assert [r.get("seeds", 1) for r in rows] == [1, 1, 3, 1]
+    assert all(r["env_steps_per_s"] > 0 and r["compile_s"] >= 0 for r in rows)
+    del bench

@@ -56,8 +56,46 @@ def train_throughput(cfg, env, expert, norm, calls: int = 3) -> dict:
             "updates_per_s": calls * cfg.updates_per_call / dt, "compile_s": compile_s}
 
 
+def _shim_jax_for_brax() -> None:
+    """brax 0.14.2's PPO still calls jax.device_put_replicated, which newer jax removed: provide it."""
+    try:
+        jax.device_put_replicated  # noqa: B018
+    except AttributeError:
+        def device_put_replicated(x, devices):
+            return jax.tree.map(lambda a: jax.device_put(jnp.stack([a] * len(devices))), x)
+
+        jax.device_put_replicated = device_put_replicated
+
+
+def brax_ppo_throughput(env, num_envs: int, unroll_length: int = 94, num_minibatches: int = 4,
+                        epochs: int = 4, updates: int = 4) -> dict:
+    """The peer: brax's own PPO trainer on the same env, batch and network sizes, with the env's fixed
+    reward (fetchq: the success flag). Throughput is measured between its last two progress reports."""
+    import functools
+
+    from brax.training.agents.ppo import networks as ppo_networks
+    from brax.training.agents.ppo import train as ppo
+
+    _shim_jax_for_brax()
+
+    stamps = []
+    per_update = num_envs * unroll_length
+    t0 = time.time()
+    ppo.train(
+        environment=env, num_timesteps=per_update * updates * 2, num_envs=num_envs,
+        episode_length=env.max_episode_steps, unroll_length=unroll_length,
+        batch_size=max(1, num_envs // num_minibatches), num_minibatches=num_minibatches,
+        num_updates_per_batch=epochs, num_evals=3, num_eval_envs=min(num_envs, 128), seed=0,
+        network_factory=functools.partial(ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=(128,) * 4,
+                                          value_hidden_layer_sizes=(128,) * 4),
+        progress_fn=lambda step, metrics: stamps.append((time.time(), step)))
+    (t1, s1), (t2, s2) = stamps[-2], stamps[-1]
+    return {"num_envs": num_envs, "seeds": 1, "env_steps_per_s": (s2 - s1) / max(t2 - t1, 1e-9),
+            "compile_s": stamps[0][0] - t0 if stamps else float("nan")}
+
+
 def main(task: str = "fetchq", sizes=(64, 1024, 8192), out: str | None = None, env_only: bool = False,
-         steps: int = 200) -> list[dict]:
+         steps: int = 200, peer: bool = True, unroll: int = 94, calls: int = 3) -> list[dict]:
     import cogail_envs
 
     from . import data, train
@@ -78,9 +116,15 @@ def main(task: str = "fetchq", sizes=(64, 1024, 8192), out: str | None = None, e
     norm = train.fit_normalizer(expert)
     for n in sizes:
         for seeds in ((300,), (300, 400, 500)):
-            cfg = base.replace(num_envs=n, seeds=seeds, unroll_length=94, updates_per_call=5, total_steps=n * 94 * 100)
-            r = train_throughput(cfg, env, expert, norm)
+            cfg = base.replace(num_envs=n, seeds=seeds, unroll_length=unroll, updates_per_call=min(5, calls + 1),
+                               total_steps=n * unroll * 100,
+                               num_minibatches=4 if (n * unroll) % 4 == 0 else 1)
+            r = train_throughput(cfg, env, expert, norm, calls=calls)
             rows.append({"task": task, "kind": "co-gail train_step", **r})
+            print(json.dumps(rows[-1]), flush=True)
+        if peer:
+            r = brax_ppo_throughput(env, n, unroll_length=unroll, num_minibatches=4 if n % 4 == 0 else 1)
+            rows.append({"task": task, "kind": "brax ppo (peer)", **r})
             print(json.dumps(rows[-1]), flush=True)
     _table(rows, out)
     return rows
@@ -92,7 +136,24 @@ def _table(rows, out):
         print(f"{r['task']:9} {r['kind']:20} {r['num_envs']:>6} {r.get('seeds', 1):>5} "
               f"{r['env_steps_per_s']:>12.3g} {r['compile_s']:>9.1f}")
     if out:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
         Path(out).write_text(json.dumps({"device": str(jax.devices()[0]), "rows": rows}, indent=2))
+
+
+def add_arguments(p) -> None:
+    p.add_argument("task", nargs="?", default="fetchq")
+    p.add_argument("out", nargs="?", default=None, help="JSON output path")
+    p.add_argument("--sizes", default="64,1024,8192", help="comma-separated batch sizes")
+    p.add_argument("--steps", type=int, default=200, help="env steps per timed call")
+    p.add_argument("--env-only", action="store_true", help="skip the train_step rows")
+    p.add_argument("--no-peer", action="store_true", help="skip brax's PPO")
+    p.add_argument("--unroll", type=int, default=94, help="rollout length per update")
+    p.add_argument("--calls", type=int, default=3, help="timed train_step calls per row")
+
+
+def run_from_args(a) -> None:
+    main(a.task, tuple(int(x) for x in a.sizes.split(",")), a.out, a.env_only, a.steps, not a.no_peer, a.unroll,
+         a.calls)
 
 
 def cli(argv=None):
@@ -104,8 +165,12 @@ def cli(argv=None):
     p.add_argument("--sizes", default="64,1024,8192", help="comma-separated batch sizes")
     p.add_argument("--steps", type=int, default=200, help="env steps per timed call")
     p.add_argument("--env-only", action="store_true", help="skip the train_step rows")
+    p.add_argument("--no-peer", action="store_true", help="skip brax's PPO")
+    p.add_argument("--unroll", type=int, default=94, help="rollout length per update")
+    p.add_argument("--calls", type=int, default=3, help="timed train_step calls per row")
     a = p.parse_args(argv)
-    main(a.task, tuple(int(x) for x in a.sizes.split(",")), a.out, a.env_only, a.steps)
+    main(a.task, tuple(int(x) for x in a.sizes.split(",")), a.out, a.env_only, a.steps, not a.no_peer, a.unroll,
+         a.calls)
 
 
 if __name__ == "__main__":

@@ -76,6 +76,14 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--every", type=_positive, default=1, help="evaluate every k-th checkpoint (default 1: all)")
     e.add_argument("--no-progress", action="store_true")
 
+    b = sub.add_parser("bench", help="throughput table: env-only, Co-GAIL train_step (1 and 3 seeds), brax PPO",
+                       description="Env steps/s of the task alone (random actions), of the full Co-GAIL update "
+                                   "with 1 and 3 vmapped seeds, and of brax's PPO on the same env and batch; "
+                                   "prints a table and writes JSON.")
+    from .bench import add_arguments as _bench_args
+
+    _bench_args(b)
+
     v = sub.add_parser("video", help="render scripted demonstrations or a run's interpolation rollouts",
                        description="Write a GIF/MP4 of episodes: scripted demos of --task, or, with --run, "
                                    "the best checkpoint's interpolation rollouts.")
@@ -206,6 +214,11 @@ def _dispatch(a) -> int:
 
         eval_run(a.run, progress=not a.no_progress, every=a.every)
         print((Path(a.run) / "results.md").read_text())
+        return 0
+    if a.command == "bench":
+        from .bench import run_from_args
+
+        run_from_args(a)
         return 0
     if a.command == "video":
         from .video import write_video

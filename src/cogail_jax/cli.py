@@ -67,6 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--run", required=True, help="run directory")
     t.add_argument("--resume", action="store_true", help="continue the run in --run from its last valid checkpoint")
     t.add_argument("--eval", action="store_true", help="evaluate every checkpoint when training ends")
+    t.add_argument("--devices", default=None,
+                   help="shard the seed axis over N devices or 'all' (one program; seeds must split evenly)")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     e = sub.add_parser("eval", help="evaluate every checkpoint of a run (interpolation, replay, latent map)",
@@ -202,7 +204,7 @@ def _dispatch(a) -> int:
         from .trainer import eval_run, train_run
 
         cfg = _config_from_args(a)
-        run = train_run(cfg, a.run, resume=a.resume, progress=not a.no_progress)
+        run = train_run(cfg, a.run, resume=a.resume, progress=not a.no_progress, devices=a.devices)
         print(f"trained: {run}")
         if a.eval:
             res = eval_run(run, progress=not a.no_progress)

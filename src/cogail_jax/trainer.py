@@ -105,8 +105,38 @@ def _log_scalars(writers, metrics, update0, steps_per_update):
                 w.add_scalar(f"train/{k}", float(v[u, i]), step)
 
 
+def seed_mesh(devices: str | int | None, num_seeds: int):
+    """A 1-D mesh over the devices that share the seed axis (``devices``: a number or "all"); None for one."""
+    from jax.sharding import Mesh
+
+    avail = jax.devices()
+    n = len(avail) if devices in ("all", None) else int(devices)
+    if devices is None or n <= 1:
+        return None
+    if n > len(avail):
+        raise RunError(f"--devices {n} asked for more devices than the {len(avail)} visible ones")
+    while num_seeds % n:  # the seed axis must split evenly
+        n -= 1
+    if n <= 1:
+        return None
+    return Mesh(np.asarray(avail[:n]), ("seeds",))
+
+
+def place_on_devices(state, expert, devices, num_seeds):
+    """Shard the leading seed axis of the state over the mesh; replicate the demonstrations. One program:
+    jit follows the input shardings, so every device runs its seeds' rollouts and updates."""
+    mesh = seed_mesh(devices, num_seeds)
+    if mesh is None:
+        return state, expert
+    from jax.sharding import NamedSharding, PartitionSpec as P
+
+    state = jax.device_put(state, NamedSharding(mesh, P("seeds")))
+    expert = jax.device_put(expert, NamedSharding(mesh, P()))
+    return state, expert
+
+
 def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True,
-              stop_after: int | None = None) -> Path:
+              stop_after: int | None = None, devices: str | int | None = None) -> Path:
     """Train (or resume) a run; returns the run directory. ``stop_after`` stops early after that many updates
     (tests use it to simulate an interrupted run)."""
     run_dir = Path(run_dir)
@@ -124,6 +154,7 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
     if state is None:
         state = s.init(cfg.seeds, s.expert)
         ckpt.save(mgr, 0, state)
+    state, s.expert = place_on_devices(state, s.expert, devices, len(cfg.seeds))
     total = total_updates(cfg)
     upc = cfg.updates_per_call
     from tensorboardX import SummaryWriter

@@ -37,11 +37,13 @@ def env_throughput(env, num_envs: int, steps: int = 200, reps: int = 3) -> dict:
     return {"num_envs": num_envs, "env_steps_per_s": num_envs * steps * reps / dt, "compile_s": compile_s}
 
 
-def train_throughput(cfg, env, expert, norm, calls: int = 3) -> dict:
+def train_throughput(cfg, env, expert, norm, calls: int = 3, devices=None) -> dict:
     from . import train
+    from .trainer import place_on_devices
 
     init, chunk, _ = train.make_train_fns(cfg, env, norm)
     state = init(cfg.seeds, expert)
+    state, expert = place_on_devices(state, expert, devices, len(cfg.seeds))
     t0 = time.time()
     state, m = chunk(state, expert)
     jax.block_until_ready(m)

@@ -1,0 +1,40 @@
+"""Several GPUs: Co-GAIL train_step throughput with the seed axis sharded over the visible devices, against
+one device at the same per-device batch (one seed of --envs environments per device).
+
+    python experiments/multi_gpu.py --task fetchq --envs 8192
+"""
+import argparse
+import json
+
+import jax
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--task", default="fetchq")
+    p.add_argument("--envs", type=int, default=8192)
+    p.add_argument("--unroll", type=int, default=94)
+    p.add_argument("--calls", type=int, default=3)
+    a = p.parse_args()
+    import cogail_envs
+
+    from cogail_jax import bench, data, train
+    from cogail_jax.config import TrainConfig
+
+    env = cogail_envs.make_env(a.task)
+    expert = train.expert_arrays(data.load_demos(data.ensure_default_demos(env, "train"), env), 4)
+    norm = train.fit_normalizer(expert)
+    n = len(jax.devices())
+    rows = []
+    for seeds, devices in (((300,), None), (tuple(300 + 100 * i for i in range(n)), "all")):
+        cfg = TrainConfig(task=a.task, num_envs=a.envs, unroll_length=a.unroll, seeds=seeds, updates_per_call=4,
+                          total_steps=a.envs * a.unroll * 100)
+        r = bench.train_throughput(cfg, env, expert, norm, calls=a.calls, devices=devices)
+        rows.append({"devices": 1 if devices is None else n, **r})
+        print(json.dumps(rows[-1]), flush=True)
+    print(f"speed-up with {n} devices at the same per-device batch: "
+          f"{rows[1]['env_steps_per_s'] / rows[0]['env_steps_per_s']:.2f}x")
+
+
+if __name__ == "__main__":
+    main()

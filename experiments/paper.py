@@ -33,7 +33,7 @@ PAPER_INTERP = {  # Table 2 of the paper
 }
 
 
-def run_one(task, method, mix, seeds, out: Path, extra: dict) -> dict:
+def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1) -> dict:
     from cogail_jax import trainer
     from cogail_jax.config import TrainConfig
 
@@ -44,7 +44,7 @@ def run_one(task, method, mix, seeds, out: Path, extra: dict) -> dict:
     run = out / "runs" / f"{task}-{method}-{mix}"
     resume = (run / "config.json").exists()
     trainer.train_run(cfg, run, resume=resume, progress=False)
-    return trainer.eval_run(run, progress=False)
+    return trainer.eval_run(run, progress=False, every=every)
 
 
 def fmt(d):
@@ -101,6 +101,7 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", default="300,400,500")
     p.add_argument("--out", default="results/paper")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="override config fields")
+    p.add_argument("--eval-every", type=int, default=1, help="evaluate every k-th checkpoint (default: all)")
     a = p.parse_args(argv)
     sys.path.insert(0, str(ROOT.parent / "src"))
     from cogail_jax.config import TrainConfig
@@ -118,7 +119,7 @@ def main(argv=None) -> int:
     for t in tasks:
         for m in methods:
             for mix in (a.mixes.split(",") if t == "fetchq" else ["uniform"]):
-                res = run_one(t, m, mix, seeds, out, extra)
+                res = run_one(t, m, mix, seeds, out, extra, a.eval_every)
                 results[f"{t}/{m}/{mix}"] = {k: res[k] for k in ("replay_success", "interpolation_success",
                                                                   "strategy_distribution", "best_checkpoint")}
                 print(f"{t:9} {m:12} {mix:8} replay {fmt(res['replay_success'])}  "

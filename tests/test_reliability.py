@@ -43,9 +43,9 @@ def reference(kill_cfg, tmp_path_factory):
     return _params(run, kill_cfg)
 
 
-def _start(cfg_file, run, resume):
+def _start(cfg_file, run, resume, stdout=subprocess.DEVNULL):
     args = [sys.executable, "-m", "cogail_jax.cli", "train", "--config", str(cfg_file), "--run", str(run), "--no-progress"]
-    return subprocess.Popen(args + (["--resume"] if resume else []), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+    return subprocess.Popen(args + (["--resume"] if resume else []), stdout=stdout, stderr=subprocess.PIPE,
                             start_new_session=True)
 
 
@@ -78,8 +78,14 @@ def test_kill_9_then_resume_matches_uninterrupted(kill_cfg, reference, tmp_path)
             kills += 1
         proc.wait()
     assert kills >= 2
-    proc = _start(cfg_file, run, resume=True)
-    assert proc.wait(timeout=600) == 0, proc.stderr.read().decode()[-2000:]
+    proc = _start(cfg_file, run, resume=True, stdout=subprocess.PIPE)
+    out, err = proc.communicate(timeout=600)
+    assert proc.returncode == 0, err.decode()[-2000:]
+    # the work done before the kills is kept: training continues from a checkpoint at or after update 12
+    import re
+
+    m = re.search(r"resuming .* from update (\d+)", out.decode())
+    assert m and int(m.group(1)) >= 12, out.decode()[-500:]
     got = _params(run, kill_cfg)  # every checkpoint left behind is readable
     last = max(reference)
     assert max(got) == last

@@ -62,3 +62,12 @@ def test_bench_tiny_writes_json(tmp_path, monkeypatch):
     assert [r.get("seeds", 1) for r in rows] == [1, 1, 3, 1]
     assert all(r["env_steps_per_s"] > 0 and r["compile_s"] >= 0 for r in rows)
     del bench
+
+
+def test_video_of_scripted_demos(tmp_path):
+    import imageio.v2 as imageio
+
+    out = tmp_path / "demo.gif"
+    assert cli.main(["video", "--task", "fetchq", "--num", "2", "--out", str(out)]) == 0
+    frames = imageio.mimread(out)
+    assert len(frames) > 20 and frames[0].shape == (256, 512, 3)

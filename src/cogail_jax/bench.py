@@ -162,17 +162,8 @@ def cli(argv=None):
     import argparse
 
     p = argparse.ArgumentParser(prog="python -m cogail_jax.bench", description="Throughput table (env steps/s).")
-    p.add_argument("task", nargs="?", default="fetchq")
-    p.add_argument("out", nargs="?", default=None, help="JSON output path")
-    p.add_argument("--sizes", default="64,1024,8192", help="comma-separated batch sizes")
-    p.add_argument("--steps", type=int, default=200, help="env steps per timed call")
-    p.add_argument("--env-only", action="store_true", help="skip the train_step rows")
-    p.add_argument("--no-peer", action="store_true", help="skip brax's PPO")
-    p.add_argument("--unroll", type=int, default=94, help="rollout length per update")
-    p.add_argument("--calls", type=int, default=3, help="timed train_step calls per row")
-    a = p.parse_args(argv)
-    main(a.task, tuple(int(x) for x in a.sizes.split(",")), a.out, a.env_only, a.steps, not a.no_peer, a.unroll,
-         a.calls)
+    add_arguments(p)
+    run_from_args(p.parse_args(argv))
 
 
 if __name__ == "__main__":

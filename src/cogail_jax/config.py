@@ -55,6 +55,8 @@ class TrainConfig:
     lambda_a: float = 1.0
     diversity_coef: float = 0.1  # DIAYN: weight of the diversity reward
     lambda_spread: float = 0.0  # our addition: psi's codes of expert histories match the prior's moments (0 = off)
+    la_codes: str = "psi"  # L_a's code: "psi" (the paper: psi of each step's history) or "demo" (one learned
+    # code per demonstration, psi regressing it; keeps the code constant along an episode as in the rollouts)
     lambda_r: float = 1.0  # our addition: robot-action reconstruction on expert data with psi's code (0 = paper)
     aux_lr: float = 3e-4
     inner_updates: int = 4  # discriminator / psi updates per train step (Algorithm 1's "update step = 1..n")

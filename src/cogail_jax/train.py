@@ -146,6 +146,8 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             "actor": nets["actor"].init(k_a, obs0, z0),
             "critic": nets["critic"].init(k_c, obs0, z0),
             "psi": nets["psi"].init(k_p, jnp.zeros((1, (K + 1) * D + Ah))),
+            # one learned code per demonstration (pre-tanh): BC pre-training and, with la_codes="demo", L_a
+            "codes": 0.1 * jax.random.normal(k_z, (int(norm_stats["num_demos"]), cfg.code_dim)),
             "disc": nets["disc"].init(k_d, jnp.zeros((1, D + env.action_size))),
         }
         env_state = jax.vmap(env.reset)(jax.random.split(k_env, N))
@@ -153,7 +155,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         return TrainState(
             params=params,
             ppo_opt=ppo_tx.init({"actor": params["actor"], "critic": params["critic"]}),
-            aux_opt=aux_tx.init({"actor": params["actor"], "psi": params["psi"]}),
+            aux_opt=aux_tx.init({"actor": params["actor"], "psi": params["psi"], "codes": params["codes"]}),
             disc_opt=disc_tx.init(params["disc"]),
             norm={"mean": norm_mean, "std": norm_std},
             ret_rms={"mean": jnp.zeros(()), "var": jnp.ones(()), "count": jnp.asarray(1e-4)},
@@ -173,11 +175,10 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             return state
         tx = optax.adam(cfg.bc_lr)
         rng, key, k_codes = jax.random.split(state.rng, 3)
-        num_demos = int(norm_stats["num_demos"])
         # one learned code per demonstration (tanh-squashed), so the co-policy learns to act on a code held
         # for the whole episode (as in the rollouts) and psi learns to recognise it from the history
         sub = {"actor": state.params["actor"], "psi": state.params["psi"],
-               "codes": 0.1 * jax.random.normal(k_codes, (num_demos, cfg.code_dim))}
+               "codes": state.params["codes"]}
 
         def body(carry, key):
             sub, opt = carry
@@ -188,7 +189,6 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             return (optax.apply_updates(sub, upd), opt), loss
 
         (sub, _), bc_losses = jax.lax.scan(body, (sub, tx.init(sub)), jax.random.split(key, cfg.bc_steps))
-        sub.pop("codes")
         return state.replace(params={**state.params, **sub}, rng=rng), bc_losses[-1]
 
     def sample_expert(norm, expert, key, n):
@@ -254,8 +254,12 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
                 if cfg.use_diversity:
                     h_gen = jnp.concatenate([gen_b["hist"], gen["prev_ah"]], -1)
                     terms["loss_q"] = (1.0, losses.diversity_q_loss(psi, p, h_gen, gen["z"]))
+                if cfg.use_la and cfg.la_codes == "demo":
+                    la_demo = losses.bc_loss(psi, actor, p, exp_b, True, codes="demo", target="human")
                 if cfg.use_la or cfg.use_lr:
                     la, lr, spread = losses.behaviour_loss(psi if cfg.use_code else zero_code, actor, p, exp_b, Ah)
+                    if cfg.use_la and cfg.la_codes == "demo":
+                        la = la_demo
                     if cfg.use_la:
                         terms["loss_a"] = (cfg.lambda_a, la)
                         if cfg.lambda_spread > 0:
@@ -265,7 +269,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
                 total = sum(w * v for w, v in terms.values())
                 return total, {k: v for k, (_, v) in terms.items()}
 
-            sub = {"actor": params["actor"], "psi": params["psi"]}
+            sub = {"actor": params["actor"], "psi": params["psi"], "codes": params["codes"]}
             aux_m = {}
             if cfg.use_lz or cfg.use_la or cfg.use_lr or cfg.use_diversity:
                 (_, aux_m), g = jax.value_and_grad(aux_loss, has_aux=True)(sub)
@@ -351,7 +355,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             upd, opt = aux_tx.update(g, opt, sub)
             return (optax.apply_updates(sub, upd), opt), loss
 
-        sub = {"actor": state.params["actor"], "psi": state.params["psi"]}
+        sub = {"actor": state.params["actor"], "psi": state.params["psi"], "codes": state.params["codes"]}
         (sub, opt), bc = jax.lax.scan(body, (sub, state.aux_opt),
                                       jax.random.split(key, cfg.ppo_epochs * cfg.num_minibatches))
         state = state.replace(params={**state.params, **sub}, aux_opt=opt, rng=rng, update=state.update + 1)

@@ -51,11 +51,11 @@ class TrainConfig:
     code_grid: int = 5
     code_noise: float = 0.2
     history: int = 4  # K: psi reads s_{t-K..t} and a^H_{t-1}
-    lambda_z: float = 1.0
+    lambda_z: float = 0.05  # the paper gives no value; 1.0 erodes interpolation (README)
     lambda_a: float = 1.0
     diversity_coef: float = 0.1  # DIAYN: weight of the diversity reward
     lambda_spread: float = 0.0  # our addition: psi's codes of expert histories match the prior's moments (0 = off)
-    la_codes: str = "psi"  # L_a's code: "psi" (the paper: psi of each step's history) or "demo" (one learned
+    la_codes: str = "demo"  # L_a's code: "psi" (the paper: psi of each step's history) or "demo" (one learned
     # code per demonstration, psi regressing it; keeps the code constant along an episode as in the rollouts)
     lambda_r: float = 1.0  # our addition: robot-action reconstruction on expert data with psi's code (0 = paper)
     aux_lr: float = 3e-4

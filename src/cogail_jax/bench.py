@@ -10,15 +10,17 @@ import jax.numpy as jnp
 
 
 def env_throughput(env, num_envs: int, steps: int = 200, reps: int = 3) -> dict:
-    """Random actions, vmapped over ``num_envs``, ``steps`` steps in a lax.scan, auto-reset by select."""
+    """Random actions, vmapped over ``num_envs``, ``steps`` steps in a lax.scan, auto-reset by select from one
+    batch of fresh states per call (as the trainer's rollout does)."""
 
     @jax.jit
     def run(state, key):
-        def body(s, k):
-            k1, k2 = jax.random.split(k)
+        key, k_pool = jax.random.split(key)
+        fresh = jax.vmap(env.reset)(jax.random.split(k_pool, num_envs))
+
+        def body(s, k1):
             a = jax.random.uniform(k1, (num_envs, env.action_size), minval=-1, maxval=1)
             nxt = jax.vmap(env.step)(s, a)
-            fresh = jax.vmap(env.reset)(jax.random.split(k2, num_envs))
             done = nxt.done > 0
             s = jax.tree.map(lambda r, n: jnp.where(done.reshape(done.shape + (1,) * (n.ndim - 1)), r, n), fresh, nxt)
             return s, nxt.reward.sum()

@@ -199,10 +199,16 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
     # ------------------------------------------------------------------ one Co-GAIL update
     def rollout(state: TrainState, key):
         params, norm = state.params, state.norm
+        # One batch of fresh episodes per rollout, not per step: an env whose episode ends takes its fresh state
+        # (for MJX tasks a reset costs a forward pass, so resetting every env every step doubled the step's cost).
+        # An env that ends twice within one unroll restarts from the same initial state (with a new code).
+        key, k_pool = jax.random.split(key)
+        fresh = jax.vmap(env.reset)(jax.random.split(k_pool, N))
+        fresh_hist = jnp.repeat(fresh.obs[:, None], K + 1, 1)
 
         def body(carry, key):
             env_state, z, hist, prev_ah, counter = carry
-            k_act, k_reset, k_code = jax.random.split(key, 3)
+            k_act, k_code = jax.random.split(key)
             obs_n = normalize(norm, env_state.obs)
             mean, log_std = actor(params["actor"], obs_n, z)
             value = critic(params["critic"], obs_n, z)
@@ -214,14 +220,13 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             tr = {"obs": env_state.obs, "z": z, "hist": hist, "prev_ah": prev_ah, "first": env_state.info["t"] == 0,
                   "action": a, "act": act, "logp": logp, "value": value, "done": done.astype(jnp.float32),
                   "success": nxt.metrics["success"] * done}
-            fresh = jax.vmap(env.reset)(jax.random.split(k_reset, N))
             z_new, counter = new_codes(counter, done, k_code)
 
             def pick(r, n):
                 return jnp.where(done.reshape(done.shape + (1,) * (n.ndim - 1)), r, n)
 
             env_state = jax.tree.map(pick, fresh, nxt)
-            hist = pick(jnp.repeat(fresh.obs[:, None], K + 1, 1), jnp.concatenate([hist[:, 1:], nxt.obs[:, None]], 1))
+            hist = pick(fresh_hist, jnp.concatenate([hist[:, 1:], nxt.obs[:, None]], 1))
             prev_ah = pick(jnp.zeros_like(prev_ah), act[:, :Ah])
             z = pick(z_new, z)
             return (env_state, z, hist, prev_ah, counter), tr

@@ -10,13 +10,9 @@ export PYTHONPATH=$PWD/src:/tmp/pk:/tmp/site PYTHONUNBUFFERED=1 COGAIL_DATA=/tmp
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT" /tmp/paper
 nvidia-smi --query-gpu=name --format=csv,noheader
 [ -f docs/results/paper/paper.json ] && [ ! -f /tmp/paper/paper.json ] && cp docs/results/paper/paper.json /tmp/paper/paper.json
-copy_out() {
-  cp /tmp/paper/*.md /tmp/paper/*.json /tmp/paper/*.png "$OUT/" 2>/dev/null
-  for r in /tmp/paper/runs/*; do
-    [ -f "$r/results.json" ] || continue
-    n=$(basename "$r"); mkdir -p "$OUT/runs/$n"
-    cp "$r"/results.json "$r"/results.md "$r"/speed.json "$r"/*.png "$OUT/runs/$n/" 2>/dev/null
-  done
+copy_out() {  # the device tool brings back few files: one archive of tables, JSON, figures (no checkpoints)
+  (cd /tmp/paper && tar czf "$OUT/paper.tgz" --exclude='checkpoints' --exclude='tb' --exclude='*.gif' \
+     --exclude='corrupt_checkpoints' *.md *.json *.png runs 2>/dev/null)
 }
 trap copy_out EXIT
 start=$(date +%s.%N)

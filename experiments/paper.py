@@ -93,6 +93,17 @@ def tables(results: dict, tasks, methods, out: Path) -> None:
     (out / "paper.json").write_text(json.dumps(results, indent=2))
 
 
+ORDER = ("bc_single", "bc_gail", "ma_gail", "ma_infogail", "diayn", "cogail")
+
+
+def table_axes(results: dict, tasks, methods):
+    """Tasks and methods to tabulate: those asked for plus those already in paper.json (earlier calls)."""
+    keys = [k.split("/") for k in results]
+    ts = [t for t in ("fetchq", "handover", "seqmanip") if t in tasks or any(k[0] == t for k in keys)]
+    ms = [m for m in ORDER if m in methods or any(k[1] == m for k in keys)]
+    return ts, ms
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--tasks", default="fetchq")
@@ -124,7 +135,7 @@ def main(argv=None) -> int:
                                                                   "strategy_distribution", "best_checkpoint")}
                 print(f"{t:9} {m:12} {mix:8} replay {fmt(res['replay_success'])}  "
                       f"interp {fmt(res['interpolation_success'])}", flush=True)
-                tables(results, tasks, methods, out)
+                tables(results, *table_axes(results, tasks, methods), out)
     print((out / "table1_replay.md").read_text())
     print((out / "table2_interpolation.md").read_text())
     return 0

@@ -10,7 +10,7 @@ BUDGET ?= paper
 RUN ?= runs/$(TASK)-$(METHOD)-$(BUDGET)
 EXTRA ?=
 
-.PHONY: install train eval test demos video bench clean help paper
+.PHONY: install browser train eval test demos video bench clean help paper
 
 help:
 	@echo "make train [TASK=fetchq|handover|seqmanip] [METHOD=cogail|ma_infogail|ma_gail] [SEEDS=300,400,500] [BUDGET=paper|quick] [RUN=dir]"
@@ -22,7 +22,17 @@ $(BIN)/.installed: pyproject.toml
 	$(BIN)/python -m pip install -q -e '.[test]'
 	touch $@
 
-install: $(BIN)/.installed
+install: $(BIN)/.installed browser
+
+# Headless Chromium + chromedriver (Debian packages) for the browser tests of `cogail play`; installed when
+# missing (with sudo unless root). A failure only warns, so `make train` never depends on it.
+browser:
+	@if command -v chromium >/dev/null && command -v chromedriver >/dev/null; then :; \
+	elif command -v apt-get >/dev/null; then \
+	  SUDO=$$([ "$$(id -u)" = 0 ] || echo sudo); \
+	  { $$SUDO apt-get update -qq && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium \
+	    chromium-driver; } || echo "warning: could not install chromium chromium-driver: tests/test_play.py will fail"; \
+	else echo "warning: chromium/chromedriver missing and no apt-get: tests/test_play.py will fail"; fi
 
 # Trains with the task's settings under experiments/, then evaluates every checkpoint.
 # Re-running the same command resumes an interrupted run from its last checkpoint.

@@ -1,4 +1,4 @@
-"""The ``cogail`` command line: demos, train, eval, video."""
+"""The ``cogail`` command line: demos, train, eval, video, play, ..."""
 from __future__ import annotations
 
 import argparse
@@ -76,7 +76,30 @@ def build_parser() -> argparse.ArgumentParser:
                                    "results.json, results.md and figures into the run directory.")
     e.add_argument("--run", required=True, help="run directory")
     e.add_argument("--every", type=_positive, default=1, help="evaluate every k-th checkpoint (default 1: all)")
+    e.add_argument("--replay-file", default=None, metavar="FILE.hdf5",
+                   help="replay evaluation against these demonstrations (e.g. the trials `cogail play` recorded) "
+                        "instead of the run's held-out set; results go to RUN/replay-<file name>/")
     e.add_argument("--no-progress", action="store_true")
+
+    pl = sub.add_parser("play", help="drive the human agent yourself in a local web page; the robot acts live",
+                        description="Serve a local page (127.0.0.1) on which a person drives the human agent with "
+                                    "the keyboard or a gamepad while the robot acts from pi_R with psi reading the "
+                                    "live history. Several --run: trials cycle through them in a random, blind "
+                                    "order (shown as policy A, B, ...). Every finished trial is appended to the "
+                                    "trials file in the dataset schema (method, checkpoint, success recorded), "
+                                    "ready for `cogail eval --run DIR --replay-file TRIALS`.")
+    pl.add_argument("--task", default=None, choices=TASK_NAMES, help="task (default: the first run's)")
+    pl.add_argument("--run", action="append", required=True, metavar="DIR",
+                    help="training run whose robot plays (repeatable: several runs/methods, blind order)")
+    pl.add_argument("--checkpoint", default="best",
+                    help="best (best replay checkpoint of the best seed if evaluated, else latest), latest, or N")
+    pl.add_argument("--port", type=int, default=8765, help="port on 127.0.0.1 (default 8765; 0: any free port)")
+    pl.add_argument("--trials", default=None, metavar="FILE.hdf5",
+                    help="where trials are appended (default: trials.hdf5 in the first --run)")
+    pl.add_argument("--max-steps", type=_positive, default=None,
+                    help="end a trial after this many steps (default: the task's episode length)")
+    pl.add_argument("--hz", type=float, default=15.0, help="steps per second the page asks for (default 15)")
+    pl.add_argument("--seed", type=int, default=0, help="seed of the blind order and the start states")
 
     b = sub.add_parser("bench", help="throughput table: env-only, Co-GAIL train_step (1 and 3 seeds), brax PPO",
                        description="Env steps/s of the task alone (random actions), of the full Co-GAIL update "
@@ -214,9 +237,20 @@ def _dispatch(a) -> int:
     if a.command == "eval":
         from .trainer import eval_run
 
-        eval_run(a.run, progress=not a.no_progress, every=a.every)
-        print((Path(a.run) / "results.md").read_text())
+        eval_run(a.run, progress=not a.no_progress, every=a.every, replay_file=a.replay_file)
+        if a.replay_file:
+            from .trainer import replay_results_dir
+
+            out = replay_results_dir(a.run, a.replay_file)
+            print((out / "results.md").read_text() + f"(replay against {a.replay_file}; files in {out})")
+        else:
+            print((Path(a.run) / "results.md").read_text())
         return 0
+    if a.command == "play":
+        from .play import serve
+
+        return serve(a.run, task=a.task, port=a.port, trials=a.trials, checkpoint=a.checkpoint,
+                     max_steps=a.max_steps, hz=a.hz, seed=a.seed)
     if a.command == "bench":
         from .bench import run_from_args
 

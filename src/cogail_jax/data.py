@@ -10,6 +10,10 @@ Schema (version 1)::
     data/demo_<i>/init           float32 (init_dim,)             reset parameters (env.reset_from) [optional]
     data/demo_<i> attrs:         strategy (int, 1..S; 0 = unknown), num_samples (int, = T)
 
+Trials recorded by ``cogail play`` (:func:`append_demo`) follow the same schema (file attr mixture =
+"recorded") and add demo attrs method, run, seed, checkpoint, policy (the blind label), success (0/1),
+end (success / timeout / ended), time and the final ``metric_<name>`` values.
+
 The full action the environment takes is ``concat(actions_human, actions_robot)``. ``init`` is only
 needed for replay evaluation (held-out sets); training files may omit it.
 """
@@ -76,6 +80,66 @@ def save_demos(path: str | os.PathLike, env, episodes, mixture: str = "uniform",
                 g.attrs[f"metric_{k}"] = float(np.asarray(v)[i])
     os.replace(tmp, path)
     return path
+
+
+def append_demo(path: str | os.PathLike, env, obs, actions_human, actions_robot, init, strategy: int = 0,
+                attrs: dict | None = None) -> int:
+    """Append one episode to a file in the project's schema (created if missing); returns its demo index.
+
+    ``attrs`` become attributes of the demo's group (e.g. ``cogail play`` records method, checkpoint, success).
+    The file is rewritten through a temporary copy, so an interrupted write leaves the old file intact."""
+    import shutil
+
+    import h5py
+
+    path = Path(path)
+    obs, ah, ar = (np.asarray(x, np.float32) for x in (obs, actions_human, actions_robot))
+    for name, a, dim in (("obs", obs, env.observation_size), ("actions_human", ah, env.human_action_size),
+                         ("actions_robot", ar, env.robot_action_size)):
+        if a.ndim != 2 or a.shape[1] != dim or a.shape[0] != obs.shape[0] or a.shape[0] == 0:
+            raise DatasetError(f"cannot append to {path}: '{name}' has shape {a.shape}, expected "
+                               f"({obs.shape[0] or 'T>0'}, {dim}) for task {env.name}")
+    check_appendable(path, env)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    if path.exists():
+        shutil.copyfile(path, tmp)
+    with h5py.File(tmp, "a") as f:
+        if "data" not in f:
+            f.attrs.update(task=env.name, schema_version=SCHEMA_VERSION, obs_dim=env.observation_size,
+                           human_action_dim=env.human_action_size, robot_action_dim=env.robot_action_size,
+                           init_dim=env.init_size, num_demos=0, mixture="recorded", seed=0)
+            f.create_group("data")
+        i = max([int(k[5:]) for k in f["data"] if k.startswith("demo_") and k[5:].isdigit()], default=-1) + 1
+        g = f["data"].create_group(f"demo_{i}")
+        g.create_dataset("obs", data=obs)
+        g.create_dataset("actions_human", data=ah)
+        g.create_dataset("actions_robot", data=ar)
+        g.create_dataset("init", data=np.asarray(init, np.float32).reshape(-1))
+        g.attrs["strategy"] = int(strategy)
+        g.attrs["num_samples"] = int(obs.shape[0])
+        for k, v in (attrs or {}).items():
+            g.attrs[k] = v
+        f.attrs["num_demos"] = len(f["data"])
+    os.replace(tmp, path)
+    return i
+
+
+def check_appendable(path: str | os.PathLike, env) -> None:
+    """Raise ``DatasetError`` unless ``path`` is missing or a file in the project's schema for ``env``'s task."""
+    import h5py
+
+    path = Path(path)
+    if not path.exists():
+        return
+    try:
+        with h5py.File(path, "r") as f:
+            task = f.attrs.get("task")
+    except OSError:
+        raise DatasetError(f"{path} exists and is not an HDF5 file: pass another file")
+    task = task.decode() if isinstance(task, bytes) else task
+    if task != env.name:
+        raise DatasetError(f"{path} holds demonstrations of task {task!r}, not {env.name!r}: pass another file")
 
 
 def _demo_key(name: str) -> tuple[int, str]:

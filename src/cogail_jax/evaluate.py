@@ -28,10 +28,42 @@ def interpolation_codes(n: int) -> jnp.ndarray:
     return jax.random.uniform(jax.random.PRNGKey(0), (n, 2), minval=-1, maxval=1)
 
 
-def make_eval_fns(cfg: TrainConfig, env, nets):
+def make_robot_step(cfg: TrainConfig, env, nets):
+    """The robot of the replay protocol (and of ``cogail play``): pi_R(s, psi(h)), deterministic.
+
+    Returns ``(psi_code, robot_step)``:
+
+    * ``psi_code(params, norm, hist, prev_ah) -> z``: psi's code of the history ``hist`` (K + 1 raw
+      observations s_{t-K..t}) and the human's previous action (zeros for presets without a code);
+    * ``robot_step(params, norm, state, hist, prev_ah, a_h) -> (next_state, next_hist, z, a_r)``: one env
+      step with the human's action ``a_h`` given and the robot's action from pi_R(s, psi(h)).
+    """
     actor, psi = nets["actor"].apply, nets["psi"].apply
-    K, Ah, D = cfg.history, env.human_action_size, env.observation_size
+    Ah = env.human_action_size
+
+    def normalize(norm, x):
+        return (x - norm["mean"]) / norm["std"]
+
+    def psi_code(params, norm, hist, prev_ah):
+        h = normalize(norm, hist).reshape(-1)
+        z = psi(params["psi"], jnp.concatenate([h, prev_ah]))
+        return z if cfg.use_code else jnp.zeros_like(z)
+
+    def robot_step(params, norm, state, hist, prev_ah, a_h):
+        z = psi_code(params, norm, hist, prev_ah)
+        mean, _ = actor(params["actor"], normalize(norm, state.obs), z)
+        a_r = jnp.clip(mean[Ah:], -1, 1)
+        nxt = env.step(state, jnp.concatenate([a_h, a_r]))
+        return nxt, jnp.concatenate([hist[1:], nxt.obs[None]], 0), z, a_r
+
+    return psi_code, robot_step
+
+
+def make_eval_fns(cfg: TrainConfig, env, nets):
+    actor = nets["actor"].apply
+    K, Ah = cfg.history, env.human_action_size
     Tenv = env.max_episode_steps
+    psi_code, robot_step = make_robot_step(cfg, env, nets)
 
     def normalize(norm, x):
         return (x - norm["mean"]) / norm["std"]
@@ -53,22 +85,14 @@ def make_eval_fns(cfg: TrainConfig, env, nets):
         (state, _, metrics), _ = jax.lax.scan(body, (state, jnp.array(False), state.metrics), None, length=Tenv)
         return {"success": metrics["success"], "strategy": env.classify_strategy(metrics), "metrics": metrics}
 
-    def psi_code(params, norm, hist, prev_ah):
-        h = normalize(norm, hist).reshape(-1)
-        z = psi(params["psi"], jnp.concatenate([h, prev_ah]))
-        return z if cfg.use_code else jnp.zeros_like(z)
-
     def replay_one(params, norm, init, ah, length):
         state = env.reset_from(init)
         hist = jnp.repeat(state.obs[None], K + 1, 0)
 
         def body(carry, t):
             state, hist, prev_ah, fin = carry
-            z = psi_code(params, norm, hist, prev_ah)
-            mean, _ = actor(params["actor"], normalize(norm, state.obs), z)
             a_h = jnp.where(t < length, ah[jnp.minimum(t, ah.shape[0] - 1)], 0.0)
-            nxt = env.step(state, jnp.concatenate([a_h, jnp.clip(mean[Ah:], -1, 1)]))
-            hist = jnp.concatenate([hist[1:], nxt.obs[None]], 0)
+            nxt, hist, _, _ = robot_step(params, norm, state, hist, prev_ah, a_h)
             return (freeze(fin, state, nxt), hist, a_h, fin | (nxt.done > 0)), None
 
         carry = (state, hist, jnp.zeros((Ah,)), jnp.array(False))

@@ -201,12 +201,24 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
     return run_dir
 
 
-def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1) -> dict:
-    """Evaluate every checkpoint of a run; write results.json / results.md and figures into the run dir."""
+def replay_results_dir(run_dir: str | Path, replay_file: str | Path) -> Path:
+    """Where ``eval --replay-file FILE`` writes its results: RUN/replay-<file stem>/."""
+    return Path(run_dir) / f"replay-{Path(replay_file).stem}"
+
+
+def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_file: str | Path | None = None) -> dict:
+    """Evaluate every checkpoint of a run; write results.json / results.md and figures into the run dir.
+
+    ``replay_file``: a demonstration file (e.g. the trials ``cogail play`` recorded) used as the held-out set of
+    replay evaluation instead of the run's; results then go to ``replay_results_dir(run_dir, replay_file)``."""
     run_dir = Path(run_dir)
     if not (run_dir / "config.json").exists():
         raise RunError(f"{run_dir} is not a run directory (no config.json): pass the --run of a training run")
     cfg = TrainConfig.load(run_dir / "config.json")
+    out_dir = run_dir
+    if replay_file is not None:
+        cfg = cfg.replace(heldout=str(replay_file))
+        out_dir = replay_results_dir(run_dir, replay_file)
     s = build(cfg)
     cfg = s.cfg
     mgr = ckpt.manager(run_dir)
@@ -237,15 +249,16 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1) -> dict
     res["latent_map"] = {"seed": int(cfg.seeds[0]), "checkpoint": int(best0),
                          "codes": None if lat is None else lat.tolist(),
                          "strategy": np.asarray(s.heldout["strategy"]).tolist()}
-    evaluate.save_results(run_dir, res)
-    evaluate.write_figures(run_dir, res, lat, np.asarray(s.heldout["strategy"]), s.env.strategy_names)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    evaluate.save_results(out_dir, res)
+    evaluate.write_figures(out_dir, res, lat, np.asarray(s.heldout["strategy"]), s.env.strategy_names)
     best_i = [res["best_checkpoint"][str(sd)]["interpolation"] for sd in cfg.seeds]
     first = per_ckpt[best_i[0]]["interp_metrics"]
     if "handover_x" in first:  # HR-Handover: where the handovers happened (paper Fig. 4a)
         im = {k: np.stack([per_ckpt[b]["interp_metrics"][k][i] for i, b in enumerate(best_i)])
               for k in ("handover_x", "handover_y", "handover_z")}
         succ = np.stack([per_ckpt[b]["interp_success"][i] for i, b in enumerate(best_i)])
-        evaluate.write_handover_spots(run_dir, res, im, succ, s.train_metrics)
+        evaluate.write_handover_spots(out_dir, res, im, succ, s.train_metrics)
     return res
 
 

@@ -109,13 +109,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     _bench_args(b)
 
-    v = sub.add_parser("video", help="render scripted demonstrations or a run's interpolation rollouts",
-                       description="Write a GIF/MP4 of episodes: scripted demos of --task, or, with --run, "
-                                   "the best checkpoint's interpolation rollouts.")
+    v = sub.add_parser("video", help="render scripted demonstrations or a run's rollouts (interpolation and replay)",
+                       description="Write a GIF/MP4 of episodes: scripted demos of --task, or, with --run, a grid "
+                                   "whose top row is interpolation rollouts (codes spread over the code space, best "
+                                   "interpolation checkpoint) and bottom row replays (the robot against held-out "
+                                   "human trajectories, best replay checkpoint). MJX tasks use MuJoCo's offscreen "
+                                   "renderer (no display needed).")
     v.add_argument("--task", default="fetchq", choices=TASK_NAMES)
     v.add_argument("--run", default=None, help="run directory (default: scripted demonstrations)")
     v.add_argument("--num", type=_positive, default=4, help="episodes to render")
     v.add_argument("--out", required=True, help="output .gif or .mp4")
+    v.add_argument("--steps", type=_positive, default=None, help="render at most this many steps per episode")
 
     im = sub.add_parser("import", help="convert your own demonstrations (robomimic-style HDF5 or .npz) for a task",
                         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -259,7 +263,7 @@ def _dispatch(a) -> int:
     if a.command == "video":
         from .video import write_video
 
-        path = write_video(a.task, a.out, run=a.run, num=a.num)
+        path = write_video(a.task, a.out, run=a.run, num=a.num, steps=a.steps)
         print(f"wrote {path}")
         return 0
     if a.command == "import":

@@ -25,6 +25,65 @@ def _rollout_states(env, policy, init_states, T):
     return states
 
 
+def _run_rollouts(run: Path, num: int, steps: int | None):
+    """(env, [(interpolation states, T), (replay states, T)]) for a trained run."""
+    from . import checkpoint as ckpt
+    from . import evaluate, trainer
+    from .config import TrainConfig
+
+    cfg = TrainConfig.load(run / "config.json")
+    s = trainer.build(cfg, need_heldout=True)
+    env = s.env
+    mgr = ckpt.manager(run)
+    best = {}
+    if (run / "results.json").exists():
+        best = json.loads((run / "results.json").read_text())["best_checkpoint"][str(cfg.seeds[0])]
+    latest = max(ckpt.steps(mgr))
+    abstract = jax.eval_shape(lambda: s.init(cfg.seeds, s.expert))
+
+    def load(step):
+        state = ckpt.restore(mgr, step, abstract)
+        return jax.tree.map(lambda x: x[0], state.params), jax.tree.map(lambda x: x[0], state.norm)
+
+    T = min(env.max_episode_steps, steps or env.max_episode_steps)
+    actor = s.nets["actor"].apply
+    # interpolation: codes spread over the grid, the co-policy acts for both agents
+    params, norm = load(best.get("interpolation", latest))
+    codes = evaluate.interpolation_codes(cfg.eval_codes)
+    z = codes[np.linspace(0, len(codes) - 1, num).astype(int)]
+    z = z if cfg.use_code else jnp.zeros_like(z)
+
+    def policy(st, t, key):
+        mean, _ = actor(params["actor"], (st.obs - norm["mean"]) / norm["std"], z)
+        return jnp.clip(mean, -1, 1)
+
+    states0 = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(7), num))
+    interp = jax.jit(lambda s0: _rollout_states(env, policy, s0, T))(states0)
+    # replay: held-out human trajectories open-loop, the robot from pi_R(s, psi(h)) (the replay protocol's step)
+    r_params, r_norm = load(best.get("replay", latest))
+    _, robot_step = evaluate.make_robot_step(cfg, env, s.nets)
+    h = s.heldout
+    idx = np.arange(num) % len(h["init"])
+    ah, length = jnp.asarray(h["ah"][idx]), jnp.asarray(h["length"][idx])
+    K, Ah = cfg.history, env.human_action_size
+
+    def replay_one(init, ah, length):
+        state = env.reset_from(init)
+
+        def body(carry, t):
+            state, hist, prev_ah, fin = carry
+            a_h = jnp.where(t < length, ah[jnp.minimum(t, ah.shape[0] - 1)], 0.0)
+            nxt, hist, _, _ = robot_step(r_params, r_norm, state, hist, prev_ah, a_h)
+            state = jax.tree.map(lambda a, b: jnp.where(fin, a, b), state, nxt)
+            return (state, hist, a_h, fin | (nxt.done > 0)), state
+
+        carry = (state, jnp.repeat(state.obs[None], K + 1, 0), jnp.zeros((Ah,)), jnp.array(False))
+        return jax.lax.scan(body, carry, jnp.arange(T))[1]
+
+    replay = jax.jit(jax.vmap(replay_one, out_axes=1))(jnp.asarray(h["init"][idx]), ah, length)
+    return env, [(interp, T), (replay, T)]
+
+
 def _frames(env, states, num, T):
     frames = []
     for t in range(0, T, 2):
@@ -33,12 +92,15 @@ def _frames(env, states, num, T):
     return frames
 
 
-def write_video(task: str, out: str | Path, run: str | Path | None = None, num: int = 4, fps: int = 20) -> Path:
+def write_video(task: str, out: str | Path, run: str | Path | None = None, num: int = 4, fps: int = 20,
+                steps: int | None = None) -> Path:
+    """Scripted demonstrations (``run=None``), or a run's rollouts: the top row interpolation rollouts (codes
+    spread over the code grid, best interpolation checkpoint of the first seed), the bottom row replays (the
+    robot with pi_R(s, psi(h)) against the held-out human trajectories, best replay checkpoint). ``steps``
+    caps the episode length rendered."""
     import imageio.v2 as imageio
 
     import cogail_envs
-
-    from .config import TrainConfig
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -47,12 +109,6 @@ def write_video(task: str, out: str | Path, run: str | Path | None = None, num: 
         keys = jax.random.split(jax.random.PRNGKey(0), num)
         states0 = jax.vmap(env.reset)(keys)
         team = jax.vmap(env.team_init, in_axes=(0, None))(keys, env.uniform_mix())[0]
-        team_box = [team]
-
-        def policy(state, t, key):
-            ts, a = jax.vmap(env.team_act)(team_box[0], state, jax.random.split(key, num))
-            team_box[0] = ts
-            return a
 
         # the scripted team is stateful: run it in a scan of its own
         def body(carry, key):
@@ -63,39 +119,13 @@ def write_video(task: str, out: str | Path, run: str | Path | None = None, num: 
             state = jax.tree.map(keep, state, nxt)
             return (state, ts, fin | (nxt.done > 0)), state
 
-        T = env.max_episode_steps
+        T = min(env.max_episode_steps, steps or env.max_episode_steps)
         _, states = jax.jit(lambda s, ts: jax.lax.scan(body, (s, ts, jnp.zeros((num,), bool)),
                                                         jax.random.split(jax.random.PRNGKey(1), T)))(states0, team)
-        del policy
-    else:
-        from . import checkpoint as ckpt
-        from . import evaluate, trainer
-
-        run = Path(run)
-        cfg = TrainConfig.load(run / "config.json")
-        s = trainer.build(cfg, need_heldout=False)
-        env = s.env
-        mgr = ckpt.manager(run)
-        best = None
-        if (run / "results.json").exists():
-            best = json.loads((run / "results.json").read_text())["best_checkpoint"][str(cfg.seeds[0])]["interpolation"]
-        step = best if best is not None else max(ckpt.steps(mgr))
-        state = ckpt.restore(mgr, step, jax.eval_shape(lambda: s.init(cfg.seeds, s.expert)))
-        params = jax.tree.map(lambda x: x[0], state.params)
-        norm = jax.tree.map(lambda x: x[0], state.norm)
-        codes = evaluate.interpolation_codes(cfg.eval_codes)
-        z = codes[np.linspace(0, len(codes) - 1, num).astype(int)]
-        z = z if cfg.use_code else jnp.zeros_like(z)
-        actor = s.nets["actor"].apply
-
-        def policy(st, t, key):
-            mean, _ = actor(params["actor"], (st.obs - norm["mean"]) / norm["std"], z)
-            return jnp.clip(mean, -1, 1)
-
-        T = env.max_episode_steps
-        states0 = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(7), num))
-        states = jax.jit(lambda s0: _rollout_states(env, policy, s0, T))(states0)
-    frames = _frames(env, states, num, env.max_episode_steps)
+        frames = _frames(env, states, num, T)
+    else:  # interpolation rollouts on top, replays below
+        env, rows = _run_rollouts(Path(run), num, steps)
+        frames = [np.concatenate(r, axis=0) for r in zip(*(_frames(env, st, num, T) for st, T in rows))]
     if out.suffix == ".mp4":
         imageio.mimwrite(out, frames, fps=fps, macro_block_size=1)
     else:

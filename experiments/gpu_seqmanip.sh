@@ -14,6 +14,9 @@ trap pack EXIT
 for b in ${BENCH_TASKS:-handover seqmanip}; do
   timeout ${BENCH_T:-120} python3 -m cogail_jax.bench $b "$OUT/bench-$b-env.json" --env-only --sizes ${SIZES:-8192} --steps 100 2>&1 | tail -2
 done
+if [ -n "${FETCHQ_BENCH:-}" ]; then  # fetchq: env-only, Co-GAIL train_step (1, 3 seeds) and brax's PPO, one size
+  timeout ${FETCHQ_BENCH_T:-120} python3 -m cogail_jax.bench fetchq "$OUT/bench-fetchq.json" --sizes $FETCHQ_BENCH 2>&1 | tail -6
+fi
 start=$(date +%s)
 resume=""; [ -f "$RUN/config.json" ] && resume=--resume
 timeout ${TRAIN_T:-400} python3 -m cogail_jax.cli train --config experiments/seqmanip_paper.json --task seqmanip \

@@ -80,6 +80,15 @@ class CollabEnv(Env):
     def render(self, state: State):
         raise NotImplementedError
 
+    @property
+    def version(self) -> str:
+        """A fingerprint of the task's dynamics (the MJCF and substeps for MJX tasks), stored in generated
+        demonstration files: cached default demonstrations made under other physics are regenerated."""
+        import hashlib
+
+        spec = f"{self.name}|{getattr(self, 'xml', '')}|{getattr(self, 'n_substeps', '')}|{self.max_episode_steps}"
+        return hashlib.sha1(spec.encode()).hexdigest()[:12]
+
     def split_action(self, action: jax.Array) -> tuple[jax.Array, jax.Array]:
         return action[..., : self.human_action_size], action[..., self.human_action_size :]
 

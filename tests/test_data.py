@@ -66,6 +66,14 @@ def test_default_demos_are_cached(fetchq, tmp_path, monkeypatch):
     assert p.exists() and data.load_demos(p, fetchq).num == 5
     mtime = p.stat().st_mtime
     assert data.ensure_default_demos(fetchq, "train", verbose=False) == p and p.stat().st_mtime == mtime
+    # a cached file made under other physics (another env fingerprint) is regenerated
+    import h5py
+
+    with h5py.File(p, "a") as f:
+        f.attrs["env_version"] = "other-physics"
+    data.ensure_default_demos(fetchq, "train", verbose=False)
+    with h5py.File(p, "r") as f:
+        assert f.attrs["env_version"] == fetchq.version
 
 
 def test_ten_thousand_demos_one_call(fetchq):

@@ -65,7 +65,8 @@ def save_demos(path: str | os.PathLike, env, episodes, mixture: str = "uniform",
     with h5py.File(tmp, "w") as f:
         f.attrs.update(task=env.name, schema_version=SCHEMA_VERSION, obs_dim=env.observation_size,
                        human_action_dim=env.human_action_size, robot_action_dim=env.robot_action_size,
-                       init_dim=env.init_size, num_demos=len(episodes.length), mixture=str(mixture), seed=int(seed))
+                       init_dim=env.init_size, num_demos=len(episodes.length), mixture=str(mixture), seed=int(seed),
+                       env_version=env.version)
         data = f.create_group("data")
         for i in range(len(episodes.length)):
             n = int(episodes.length[i])
@@ -241,13 +242,27 @@ def default_demo_path(task: str, split: str, mix: str = "uniform") -> Path:
     return data_dir() / f"{task}_{mix}_{split}.hdf5"
 
 
+def _stored_version(path: Path) -> str | None:
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            v = f.attrs.get("env_version")
+            return None if v is None else str(v.decode() if isinstance(v, bytes) else v)
+    except OSError:
+        return None
+
+
 def ensure_default_demos(env, split: str = "train", mix: str = "uniform", verbose: bool = True) -> Path:
     """Path of the default dataset of a task (``train`` or ``heldout``), generating it on first use."""
     from . import demos
 
     path = default_demo_path(env.name, split, mix)
     if path.exists():
-        return path
+        if _stored_version(path) == env.version:
+            return path
+        if verbose:
+            print(f"{path} was made under other {env.name} physics: regenerating it", flush=True)
     num = DEFAULT_NUM[env.name] if split == "train" else DEFAULT_HELDOUT[env.name]
     seed = 0 if split == "train" else 1
     if verbose:

@@ -23,7 +23,9 @@ Scene (world frame, z up, table top z = 0; see :mod:`mjx_common` for the gripper
   are explicit pairs only: finger pads + palm vs. the object, finger pads vs. the handle, the object vs.
   the table, the drawer floor (friction), the drawer walls and the cabinet top (frictionless, they only
   need to stop the object; the cabinet top stops it from entering a closed drawer from above).
-  60 contacts in all, Newton solver (4 iterations, 8 line-search iterations), 4 x 5 ms substeps.
+  60 contacts in all, Newton solver (2 iterations, 4 line-search iterations), 2 x 10 ms substeps,
+  finger-pad pairs with condim 3 (see :mod:`mjx_common`; measured on CPU ~2.5x cheaper per env step than
+  4 / 8 iterations, 4 x 5 ms and condim 4, with the same scripted-team results).
 
 Action (14): ``concat(a_H, a_R)``, each ``(dx, dy, dz, drx, dry, drz, g)`` in [-1, 1]: 1 cm / 1 degree
 per unit per step in the agent's base frame (the paper's HR-Handover scale, shared with
@@ -74,7 +76,10 @@ condition holds (e.g. the drawer is open and held), so every hand-off has a reac
 
 Measured (CPU, 2 cores, ``cogail_jax.demos.team_rollout_fn`` in 4 chunks of 256, uniform mix): 1024 of
 1024 scripted episodes succeed and all are classified as their intended strategy; length 416.9 +- 32.5
-steps (339-502) for human-hands-over, 385.7 +- 29.9 (309-473) for robot-opens, 401 overall (paper: 404).
+steps (339-502) for human-hands-over, 385.7 +- 29.9 (309-473) for robot-opens, 401 overall (paper: 404);
+that was with the earlier 4 x 5 ms / 4 / 8 / condim-4 settings. With the current defaults 64 + 128
+episodes (seeds 0 and 1, ``experiments/mjx_settings.py``): all succeed and are classified as intended,
+mean length 417.0 (human-hands-over) / 386.0 (robot-opens), 400.5 overall.
 ``python -m cogail_envs.seqmanip`` prints the MJCF.
 
 Rendering uses :class:`mjx_common.FrameRenderer` (default camera ``drawer``: the drawer front seen from
@@ -210,7 +215,9 @@ def _box(half, pos, rgba: str, name: str = "") -> str:
     return f'<geom {nm}type="box" size="{_f(half)}" pos="{_f(pos)}" rgba="{rgba}"/>'
 
 
-def seqmanip_xml(iterations: int = 4, ls_iterations: int = 8, side_walls: bool = True) -> str:
+def seqmanip_xml(iterations: int = mc.ITERATIONS, ls_iterations: int = mc.LS_ITERATIONS,
+                 side_walls: bool = True, finger_condim: int = mc.FINGER_CONDIM,
+                 timestep: float = mc.TIMESTEP) -> str:
     """The HR-SeqManip MJCF (two grippers, the table, the cabinet with its drawer, the bar)."""
     wood, dark, metal = "0.55 0.38 0.22 1", "0.45 0.3 0.18 1", "0.7 0.7 0.72 1"
     ww, hz = WALL, WALL_H / 2
@@ -240,9 +247,11 @@ def seqmanip_xml(iterations: int = 4, ls_iterations: int = 8, side_walls: bool =
     ] + [_box((cxh, 0.01, CAB_TOP_Z / 2), (cxc, sy * (cy - 0.01), CAB_TOP_Z / 2), wood) for sy in (-1, 1)]
     obj = mc.free_box_xml(OBJ, (*OBJ_START, OBJ_HALF[2]), OBJ_HALF, OBJ_MASS, rgba=(0.95, 0.75, 0.1, 1.0))
     walls = DRAWER_GEOMS if side_walls else DRAWER_GEOMS[:3]
-    contact = (mc.gripper_pairs_xml(HUMAN, OBJ) + mc.gripper_pairs_xml(ROBOT, OBJ)
-               + mc.gripper_pairs_xml(HUMAN, "handle", palm=False)
-               + mc.gripper_pairs_xml(ROBOT, "handle", palm=False)
+    fc = finger_condim
+    contact = (mc.gripper_pairs_xml(HUMAN, OBJ, finger_condim=fc)
+               + mc.gripper_pairs_xml(ROBOT, OBJ, finger_condim=fc)
+               + mc.gripper_pairs_xml(HUMAN, "handle", palm=False, finger_condim=fc)
+               + mc.gripper_pairs_xml(ROBOT, "handle", palm=False, finger_condim=fc)
                + mc.pair_xml(OBJ, "table", 0.8) + mc.pair_xml(OBJ, "drawer_floor", 0.8)
                # walls and the cabinet top only need to stop the object: frictionless (condim 1, fewer rows)
                + "".join(mc.pair_xml(OBJ, g, 0.0, condim=1) for g in walls[1:] + ("cab_top",)))
@@ -250,15 +259,18 @@ def seqmanip_xml(iterations: int = 4, ls_iterations: int = 8, side_walls: bool =
     cam = mc.camera_xml("drawer", (-0.45, -0.60, 0.50), (0.05, -0.03, 0.10))  # the task's default view
     world = cam + drawer + "".join(cab) + obj
     return mc.scene_xml("seqmanip", [HUMAN, ROBOT], worldbody=world, contact=contact, sensor=sensor,
-                        iterations=iterations, ls_iterations=ls_iterations)
+                        iterations=iterations, ls_iterations=ls_iterations, timestep=timestep)
 
 
 class SeqManip(CollabEnv):
     """HR-SeqManip with brax's ``Env`` API (``pipeline_state`` is ``mjx.Data``).
 
     ``iterations`` / ``ls_iterations``: Newton solver settings; ``n_substeps``: physics steps per env
-    step; ``side_walls=False`` drops the two drawer side walls' contact pairs (8 fewer contacts; the
-    scripted team does not need them).
+    step; ``timestep``: physics timestep (s); ``side_walls=False`` drops the two drawer side walls' contact
+    pairs (8 fewer contacts; the scripted team does not need them); ``finger_condim``: 3 (sliding only,
+    default) or 4 (sliding + torsional friction) for the finger-pad pairs (object and handle). Defaults:
+    :data:`mjx_common.ITERATIONS` / ``LS_ITERATIONS`` / ``N_SUBSTEPS`` / ``TIMESTEP`` / ``FINGER_CONDIM``
+    (2 / 4 / 2 / 0.01 s / 3).
     """
 
     name = "seqmanip"
@@ -269,14 +281,17 @@ class SeqManip(CollabEnv):
     strategy_names = ("human-hands-over", "robot-opens")
     discriminator_loss = "lsgan"
 
-    def __init__(self, max_episode_steps: int = 600, iterations: int = 4, ls_iterations: int = 8,
-                 n_substeps: int = mc.N_SUBSTEPS, side_walls: bool = True):
+    def __init__(self, max_episode_steps: int = 600, iterations: int = mc.ITERATIONS,
+                 ls_iterations: int = mc.LS_ITERATIONS, n_substeps: int = mc.N_SUBSTEPS,
+                 side_walls: bool = True, finger_condim: int = mc.FINGER_CONDIM,
+                 timestep: float = mc.TIMESTEP):
         import mujoco
         from mujoco import mjx
 
         self.max_episode_steps = int(max_episode_steps)
         self.n_substeps = int(n_substeps)
-        self.xml = seqmanip_xml(iterations, ls_iterations, side_walls)
+        self.timestep = float(timestep)
+        self.xml = seqmanip_xml(iterations, ls_iterations, side_walls, finger_condim, self.timestep)
         self.mj_model, self.mx = mc.build(self.xml)
         m = self.mj_model
         self.human = mc.Gripper.from_model(m, "human", [OBJ, "handle"])
@@ -296,7 +311,7 @@ class SeqManip(CollabEnv):
 
     @property
     def dt(self) -> float:
-        return mc.TIMESTEP * self.n_substeps
+        return self.timestep * self.n_substeps
 
     # ------------------------------------------------------------------ reset
     def sample_init(self, rng: jax.Array) -> jax.Array:

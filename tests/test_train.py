@@ -137,3 +137,14 @@ def test_bc_pretraining_beats_untrained_policy(tiny_cfg, fetchq):
     r0 = jax.device_get(ev(s0.params, s0.norm, held, jax.random.PRNGKey(0)))["replay_success"].mean()
     r1 = jax.device_get(ev(s1.params, s1.norm, held, jax.random.PRNGKey(0)))["replay_success"].mean()
     assert r0 == 0.0 and r1 > 0.0, (r0, r1)  # 12 held-out replays: untrained never succeeds
+
+
+def test_normaliser_std_floor(tiny_cfg, fetchq):
+    from cogail_jax.config import ConfigError
+
+    expert = train.expert_arrays(data.load_demos(tiny_cfg.demos, fetchq), tiny_cfg.history)
+    lo, hi = train.fit_normalizer(expert), train.fit_normalizer(expert, 0.5)
+    assert lo["std"].min() >= 1e-2 and hi["std"].min() >= 0.5 and np.all(hi["std"] >= lo["std"])
+    assert np.allclose(hi["mean"], lo["mean"]) and hi["num_demos"] == 12
+    with pytest.raises(ConfigError, match="obs_std_floor"):
+        tiny_cfg.replace(obs_std_floor=0.0).validate()

@@ -42,6 +42,7 @@ class TrainConfig:
     init_log_std: float = -1.6  # std 0.2: the demonstrations are smooth; a noisier start is told apart at once
     reward_norm: bool = True
     policy_warmup: int = 0  # updates during which PPO trains the critic only (the actor keeps its BC init)
+    obs_std_floor: float = 1e-2  # floor of the observation normaliser's std (0.1 for the MJX tasks' configs)
     # discriminator
     disc_loss: str = "auto"  # "bce" | "lsgan" | "auto" (the task's: bce for fetchq, lsgan for manipulation)
     disc_lr: float = 3e-4
@@ -121,6 +122,8 @@ class TrainConfig:
                      "ppo_epochs", "num_minibatches", "inner_updates", "inner_batch", "eval_codes"):
             if getattr(self, name) <= 0:
                 raise ConfigError(f"{name.replace('_', '-')} must be positive, got {getattr(self, name)}")
+        if not self.obs_std_floor > 0:
+            raise ConfigError(f"obs_std_floor must be positive, got {self.obs_std_floor}")
         if self.history < 0 or self.bc_steps < 0:
             raise ConfigError("history and bc-steps must be >= 0")
         if self.steps_per_update % self.num_minibatches:

@@ -401,10 +401,11 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
     return init, train_chunk, nets
 
 
-def fit_normalizer(expert: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Observation mean/std of the training demonstrations (std floored so constant features stay finite),
-    and the number of demonstrations (BC pre-training learns one code per demonstration)."""
-    return {"mean": expert["obs"].mean(0), "std": np.maximum(expert["obs"].std(0), 1e-2),
+def fit_normalizer(expert: dict[str, np.ndarray], std_floor: float = 1e-2) -> dict[str, np.ndarray]:
+    """Observation mean/std of the training demonstrations (std floored at ``std_floor`` so near-constant
+    features, e.g. an MJX gripper's tilt, do not blow up when a policy drifts from them), and the number of
+    demonstrations (BC pre-training learns one code per demonstration)."""
+    return {"mean": expert["obs"].mean(0), "std": np.maximum(expert["obs"].std(0), std_floor),
             "num_demos": int(expert["demo"].max()) + 1}
 
 

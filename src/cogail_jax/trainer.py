@@ -56,7 +56,7 @@ def build(cfg: TrainConfig, need_heldout: bool = True) -> Setup:
     if need_heldout:
         hpath = cfg.heldout or data.ensure_default_demos(env, "heldout", cfg.mix)
         heldout = evaluate.heldout_arrays(data.load_demos(hpath, env, require_init=True))
-    init, chunk, nets = train.make_train_fns(cfg, env, train.fit_normalizer(expert))
+    init, chunk, nets = train.make_train_fns(cfg, env, train.fit_normalizer(expert, cfg.obs_std_floor))
     return Setup(cfg, env, expert, heldout, init, chunk, nets, demos.metrics)
 
 

@@ -113,8 +113,8 @@ def test_corrupt_latest_checkpoint_is_skipped(kill_cfg, reference, tmp_path, cap
 def test_nonfinite_stops_and_keeps_last_good_checkpoint(kill_cfg, tmp_path, monkeypatch):
     real = train.fit_normalizer
 
-    def broken(expert):
-        stats = real(expert)
+    def broken(expert, *args, **kwargs):
+        stats = real(expert, *args, **kwargs)
         return {**stats, "std": np.zeros_like(stats["std"])}  # 0/0 in the observations -> NaN
 
     monkeypatch.setattr(train, "fit_normalizer", broken)

@@ -117,7 +117,7 @@ def main(task: str = "fetchq", sizes=(64, 1024, 8192), out: str | None = None, e
     demos = data.load_demos(data.ensure_default_demos(env, "train"), env)
     base = TrainConfig(task=task)
     expert = train.expert_arrays(demos, base.history)
-    norm = train.fit_normalizer(expert)
+    norm = train.fit_normalizer(expert, base.obs_std_floor)
     for n in sizes:
         for seeds in ((300,), (300, 400, 500)):
             cfg = base.replace(num_envs=n, seeds=seeds, unroll_length=unroll, updates_per_call=min(5, calls + 1),

@@ -148,3 +148,26 @@ def test_normaliser_std_floor(tiny_cfg, fetchq):
     assert np.allclose(hi["mean"], lo["mean"]) and hi["num_demos"] == 12
     with pytest.raises(ConfigError, match="obs_std_floor"):
         tiny_cfg.replace(obs_std_floor=0.0).validate()
+
+
+def test_pca_code_init_groups_demos_by_strategy(tiny_cfg, fetchq, setup):
+    """code_init="pca": demos that behave alike start with nearby codes (the nearest other demo's code is
+    mostly one of the same strategy; a random layout gets ~1/4), each axis is spread evenly over
+    (-0.9, 0.9), and the trainer's initial codes are those (plus a little noise)."""
+    demos = data.load_demos(tiny_cfg.demos, fetchq)
+    ns = train.fit_normalizer(train.expert_arrays(demos, tiny_cfg.history))
+    c = train.demo_code_init(ns["features"], 2)
+    st = np.asarray(demos.strategy)
+    assert c.shape == (12, 2) and len(set(st.tolist())) >= 3
+    d = ((c[:, None] - c[None]) ** 2).sum(-1)
+    np.fill_diagonal(d, np.inf)
+    assert (st[d.argmin(1)] == st).mean() >= 0.75
+    for k in range(2):
+        np.testing.assert_allclose(np.sort(c[:, k]), 0.9 * (2 * (np.arange(12) + 0.5) / 12 - 1), atol=1e-6)
+    init, _, expert = setup
+    state = init(tiny_cfg.seeds, expert)
+    codes = np.tanh(np.asarray(state.params["codes"]))  # (seeds, demos, 2)
+    assert codes.shape == (2, 12, 2) and np.abs(codes - c[None]).max() < 0.35
+    assert np.abs(codes[0] - codes[1]).max() > 1e-4  # the noise differs per seed
+    with pytest.raises(Exception, match="code-init"):
+        tiny_cfg.replace(code_init="kmeans").validate()

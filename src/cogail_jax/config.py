@@ -65,6 +65,8 @@ class TrainConfig:
     # behaviour-cloning pre-training of the co-policy (and psi) on the demonstrations
     bc_steps: int = 0
     bc_lr: float = 1e-3
+    code_init: str = "pca"  # per-demo codes start at: "pca" (the demos' trajectories, 2 principal components,
+    #   rank-spread over the code square: similar demos get nearby codes) or "random" (0.1 N(0, 1))
     bc_codes: str = "demo"  # "demo": one learned code per demonstration; "psi": psi's code of each step
     # evaluation
     eval_codes: int = 100
@@ -130,6 +132,8 @@ class TrainConfig:
             raise ConfigError(
                 f"num-envs x unroll-length ({self.steps_per_update}) must be divisible by num-minibatches "
                 f"({self.num_minibatches})")
+        if self.code_init not in ("pca", "random"):
+            raise ConfigError(f"code-init must be pca or random, got {self.code_init!r}")
         if self.disc_loss not in ("auto", "bce", "lsgan"):
             raise ConfigError(f"disc-loss must be auto, bce or lsgan, got {self.disc_loss!r}")
         return self

@@ -103,6 +103,9 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
     G = grid.shape[0]
     norm_mean = jnp.asarray(norm_stats["mean"], jnp.float32)
     norm_std = jnp.asarray(norm_stats["std"], jnp.float32)
+    n_demos = int(norm_stats["num_demos"])
+    code_init = (jnp.arctanh(jnp.asarray(demo_code_init(norm_stats["features"], cfg.code_dim), jnp.float32))
+                 if cfg.code_init == "pca" and "features" in norm_stats else jnp.zeros((n_demos, cfg.code_dim)))
 
     def normalize(norm, x):
         return (x - norm["mean"]) / norm["std"]
@@ -147,7 +150,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             "critic": nets["critic"].init(k_c, obs0, z0),
             "psi": nets["psi"].init(k_p, jnp.zeros((1, (K + 1) * D + Ah))),
             # one learned code per demonstration (pre-tanh): BC pre-training and, with la_codes="demo", L_a
-            "codes": 0.1 * jax.random.normal(k_z, (int(norm_stats["num_demos"]), cfg.code_dim)),
+            "codes": code_init + 0.1 * jax.random.normal(k_z, (int(norm_stats["num_demos"]), cfg.code_dim)),
             "disc": nets["disc"].init(k_d, jnp.zeros((1, D + env.action_size))),
         }
         env_state = jax.vmap(env.reset)(jax.random.split(k_env, N))
@@ -403,10 +406,41 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
 
 def fit_normalizer(expert: dict[str, np.ndarray], std_floor: float = 1e-2) -> dict[str, np.ndarray]:
     """Observation mean/std of the training demonstrations (std floored at ``std_floor`` so near-constant
-    features, e.g. an MJX gripper's tilt, do not blow up when a policy drifts from them), and the number of
-    demonstrations (BC pre-training learns one code per demonstration)."""
-    return {"mean": expert["obs"].mean(0), "std": np.maximum(expert["obs"].std(0), std_floor),
-            "num_demos": int(expert["demo"].max()) + 1}
+    features, e.g. an MJX gripper's tilt, do not blow up when a policy drifts from them), the number of
+    demonstrations (BC pre-training learns one code per demonstration) and each demonstration's trajectory
+    features (for ``code_init="pca"``)."""
+    mean, std = expert["obs"].mean(0), np.maximum(expert["obs"].std(0), std_floor)
+    return {"mean": mean, "std": std, "num_demos": int(expert["demo"].max()) + 1,
+            "features": demo_features((expert["obs"] - mean) / std, expert["demo"])}
 
 
-__all__ = ["TrainState", "make_train_fns", "expert_arrays", "fit_normalizer", "code_grid", "Callable"]
+def demo_features(obs_n: np.ndarray, demo: np.ndarray, points: int = 16) -> np.ndarray:
+    """One vector per demonstration: its normalised observations at ``points`` evenly spaced fractions of
+    its length (so demonstrations of different lengths compare phase by phase)."""
+    out = []
+    for i in range(int(demo.max()) + 1):
+        o = obs_n[demo == i]
+        idx = np.round(np.linspace(0, len(o) - 1, points)).astype(int)
+        out.append(o[idx].reshape(-1))
+    return np.stack(out).astype(np.float32)
+
+
+def demo_code_init(features: np.ndarray, code_dim: int, edge: float = 0.9) -> np.ndarray:
+    """Initial per-demonstration codes (after tanh) from the demonstrations themselves: the first ``code_dim``
+    principal components of their trajectory features, each rank-spread evenly over (-edge, edge). Demos that
+    behave alike start close, so each strategy starts as one region of the code square whose area follows
+    its share of the demos, instead of being scattered over it by a random init."""
+    f = np.asarray(features, np.float64)
+    n = f.shape[0]
+    if n < 2:
+        return np.zeros((n, code_dim), np.float32)
+    f = f - f.mean(0)
+    _, _, vt = np.linalg.svd(f, full_matrices=False)
+    pcs = f @ vt[:code_dim].T
+    if pcs.shape[1] < code_dim:
+        pcs = np.pad(pcs, ((0, 0), (0, code_dim - pcs.shape[1])))
+    ranks = np.argsort(np.argsort(pcs, 0, kind="stable"), 0, kind="stable")
+    return (edge * (2 * (ranks + 0.5) / n - 1)).astype(np.float32)
+
+
+__all__ = ["TrainState", "make_train_fns", "expert_arrays", "fit_normalizer", "demo_code_init", "demo_features", "code_grid", "Callable"]

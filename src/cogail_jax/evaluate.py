@@ -226,7 +226,7 @@ def write_figures(run_dir: Path, res: dict, latent: np.ndarray | None, latent_st
         ax.set_ylim(-1, 1)
         ax.set_xlabel("z[0]")
         ax.set_ylabel("z[1]")
-        ax.set_title("latent map: mean psi code per held-out demo")
+        ax.set_title("latent map: mean psi code\nper held-out demonstration", fontsize=10)
         ax.legend(fontsize=7)
         fig.tight_layout()
         p = run_dir / "latent_map.png"

@@ -57,7 +57,7 @@ def _run_rollouts(run: Path, num: int, steps: int | None):
         mean, _ = actor(params["actor"], (st.obs - norm["mean"]) / norm["std"], z)
         return jnp.clip(mean, -1, 1)
 
-    states0 = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(7), num))
+    states0 = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(7), num))
     interp = jax.jit(lambda s0: _rollout_states(env, policy, s0, T))(states0)
     # replay: held-out human trajectories open-loop, the robot from pi_R(s, psi(h)) (the replay protocol's step)
     r_params, r_norm = load(best.get("replay", latest))
@@ -107,8 +107,8 @@ def write_video(task: str, out: str | Path, run: str | Path | None = None, num: 
     if run is None:
         env = cogail_envs.make_env(task)
         keys = jax.random.split(jax.random.PRNGKey(0), num)
-        states0 = jax.vmap(env.reset)(keys)
-        team = jax.vmap(env.team_init, in_axes=(0, None))(keys, env.uniform_mix())[0]
+        states0 = jax.jit(jax.vmap(env.reset))(keys)  # jitted: an eager vmapped MJX reset dispatches op by op
+        team = jax.jit(jax.vmap(env.team_init, in_axes=(0, None)))(keys, env.uniform_mix())[0]
 
         # the scripted team is stateful: run it in a scan of its own
         def body(carry, key):

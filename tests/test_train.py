@@ -128,7 +128,7 @@ def test_bc_pretraining_beats_untrained_policy(tiny_cfg, fetchq):
     held = evaluate.heldout_arrays(data.load_demos(tiny_cfg.demos, fetchq, require_init=True))
     held = {k: v for k, v in held.items() if k != "strategy"}
     expert = train.expert_arrays(demos, tiny_cfg.history)
-    cfg = tiny_cfg.replace(bc_steps=1500, seeds=(1,))
+    cfg = tiny_cfg.replace(bc_steps=3000, seeds=(1,))
     init, _, nets = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
     ev, _ = evaluate.make_eval_fns(cfg, fetchq, nets)
     cfg0 = cfg.replace(bc_steps=0)

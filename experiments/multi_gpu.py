@@ -15,6 +15,8 @@ def main():
     p.add_argument("--envs", type=int, default=8192)
     p.add_argument("--unroll", type=int, default=94)
     p.add_argument("--calls", type=int, default=3)
+    p.add_argument("--updates-per-call", type=int, default=4, help="updates per jitted call (dispatch amortised)")
+    p.add_argument("--out", help="JSON output path")
     a = p.parse_args()
     import cogail_envs
 
@@ -27,13 +29,18 @@ def main():
     n = len(jax.devices())
     rows = []
     for seeds, devices in (((300,), None), (tuple(300 + 100 * i for i in range(n)), "all")):
-        cfg = TrainConfig(task=a.task, num_envs=a.envs, unroll_length=a.unroll, seeds=seeds, updates_per_call=4,
+        cfg = TrainConfig(task=a.task, num_envs=a.envs, unroll_length=a.unroll, seeds=seeds,
+                          updates_per_call=a.updates_per_call,
                           total_steps=a.envs * a.unroll * 100)
         r = bench.train_throughput(cfg, env, expert, norm, calls=a.calls, devices=devices)
         rows.append({"devices": 1 if devices is None else n, **r})
         print(json.dumps(rows[-1]), flush=True)
-    print(f"speed-up with {n} devices at the same per-device batch: "
-          f"{rows[1]['env_steps_per_s'] / rows[0]['env_steps_per_s']:.2f}x")
+    speedup = rows[1]['env_steps_per_s'] / rows[0]['env_steps_per_s']
+    print(f"{a.task}: speed-up with {n} devices at the same per-device batch: {speedup:.2f}x")
+    if a.out:
+        from pathlib import Path
+        Path(a.out).write_text(json.dumps({"task": a.task, "devices": n, "rows": rows, "speedup": speedup,
+                                           "args": vars(a)}, indent=2))
 
 
 if __name__ == "__main__":

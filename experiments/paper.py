@@ -113,6 +113,9 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="results/paper")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="override config fields")
     p.add_argument("--eval-every", type=int, default=1, help="evaluate every k-th checkpoint (default: all)")
+    p.add_argument("--merge", nargs="+", default=[], metavar="DIR",
+                   help="train nothing: add the paper.json of each DIR (runs made side by side, e.g. by "
+                        "experiments/gpu_grid.sh) to --out's and rewrite the tables")
     a = p.parse_args(argv)
     sys.path.insert(0, str(ROOT.parent / "src"))
     from cogail_jax.config import TrainConfig
@@ -127,6 +130,12 @@ def main(argv=None) -> int:
     tasks, methods = a.tasks.split(","), a.methods.split(",")
     seeds = [int(s) for s in a.seeds.split(",")]
     results = json.loads((out / "paper.json").read_text()) if (out / "paper.json").exists() else {}
+    if a.merge:
+        for d in a.merge:
+            if (Path(d) / "paper.json").is_file():
+                results.update(json.loads((Path(d) / "paper.json").read_text()))
+        tables(results, *table_axes(results, [], []), out)
+        tasks = []
     for t in tasks:
         for m in methods:
             for mix in (a.mixes.split(",") if t == "fetchq" else ["uniform"]):

@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# Several paper runs side by side on the device machine (experiments/paper.py, 3 seeds each), each job its own
+# process and results folder; small runs (64 envs per seed) leave a GPU mostly idle, so several share one.
+#   JOBS="0|handover|cogail,bc_single|uniform 1|fetchq|ma_gail|uniform,D1,D2" T=540 bash experiments/gpu_grid.sh
+# A job is GPU|task|methods|mixes. Each writes /tmp/grid/<task>-<methods>-<mixes>/paper.json; everything but
+# checkpoints comes back in $OUT/grid.tgz. Merge here with
+#   python experiments/paper.py --out docs/results/paper --merge DIR...
+# Runs resume, so calling again with the same JOBS on a warm machine finishes what a time limit cut.
+set -uo pipefail
+source experiments/gpu_env.sh
+mkdir -p /tmp/grid
+export XLA_PYTHON_CLIENT_MEM_FRACTION=${MEM:-0.15}
+pack() { (cd /tmp/grid && tar czf "$OUT/grid.tgz" --exclude='checkpoints' --exclude='corrupt_checkpoints' \
+           --exclude='*.gif' . 2>/dev/null); }
+trap pack EXIT
+# demonstrations first, one process, so side-by-side jobs never write the same cache file
+python3 - "$JOBS" <<'PY'
+import sys
+import cogail_envs
+from cogail_jax import data
+for job in sys.argv[1].split():
+    _, task, _, mixes = job.split("|")
+    env = cogail_envs.make_env(task)
+    for mix in (mixes.split(",") if task == "fetchq" else ["uniform"]):
+        for split in ("train", "heldout"):
+            data.ensure_default_demos(env, split, mix)
+PY
+start=$(date +%s)
+for job in $JOBS; do
+  IFS='|' read -r gpu task methods mixes <<< "$job"
+  name=$task-${methods//,/-}-${mixes//,/-}
+  CUDA_VISIBLE_DEVICES=$gpu timeout ${T:-540} python3 experiments/paper.py --tasks $task --methods $methods \
+    --mixes $mixes --eval-every ${EVERY:-3} ${EXTRA:-} --out /tmp/grid/$name > /tmp/grid/$name.log 2>&1 &
+done
+wait
+echo "WALL grid: $(( $(date +%s) - start )) s"
+for f in /tmp/grid/*.log; do echo "== $f"; grep -v -i warp "$f" | grep -E "replay|Error|error|Traceback" | tail -8; done

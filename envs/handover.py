@@ -196,8 +196,8 @@ class Handover(CollabEnv):
             ctrl = ctrl.at[g.act + 6].set(mc.MAX_GAP)
         d = mc.make_data(m, self.mx, qpos, ctrl, self._template)
         zero = jnp.zeros(())
-        info = {"t": jnp.zeros((), jnp.int32), "released": zero, "hold": jnp.zeros((), jnp.int32),
-                "human_grasp": zero, "robot_grasp": zero}
+        info = {"t": jnp.zeros((), jnp.int32), "failed": zero, "released": zero,
+                "hold": jnp.zeros((), jnp.int32), "human_grasp": zero, "robot_grasp": zero}
         metrics = {"success": zero, "handover": zero, "handover_x": zero, "handover_y": zero,
                    "handover_z": zero}
         return State(d, self._obs(d, info), zero, zero, metrics, info)
@@ -229,7 +229,7 @@ class Handover(CollabEnv):
         d = state.pipeline_state
         ctrl = mc.apply_gripper_action(d.ctrl, a_h, h)
         ctrl = mc.apply_gripper_action(ctrl, a_r, r)
-        d = mc.physics_step(self.mx, d, ctrl, self.n_substeps)
+        d, failed = mc.guarded_physics_step(self.mx, d, ctrl, self.n_substeps)
 
         p = self._obj_pos(d)
         h_touch = mc.touching(d, h, OBJ)
@@ -248,9 +248,9 @@ class Handover(CollabEnv):
         succ = (r_grasp & ~h_touch & lifted & (dist > SUCCESS_DIST)).astype(jnp.float32)
         m["success"] = jnp.maximum(m["success"], succ)
         t = info["t"] + 1
-        done = ((m["success"] > 0) | (t >= self.max_episode_steps)).astype(jnp.float32)
-        info = dict(info, t=t, released=released, hold=hold.astype(jnp.int32),
-                    human_grasp=h_grasp.astype(jnp.float32), robot_grasp=r_grasp.astype(jnp.float32))
+        done = ((m["success"] > 0) | (t >= self.max_episode_steps) | failed).astype(jnp.float32)
+        info = dict(info, t=t, failed=failed.astype(jnp.float32), released=released,
+                    hold=hold.astype(jnp.int32), human_grasp=h_grasp.astype(jnp.float32), robot_grasp=r_grasp.astype(jnp.float32))
         return state.replace(pipeline_state=d, obs=self._obs(d, info), reward=succ, done=done,
                              metrics=m, info=info)
 

@@ -331,14 +331,37 @@ def apply_gripper_action(ctrl: jax.Array, action: jax.Array, g: Gripper,
 
 
 def physics_step(mx: mjx.Model, d: mjx.Data, ctrl: jax.Array, n_substeps: int = N_SUBSTEPS) -> mjx.Data:
-    """Set ``ctrl`` and advance ``n_substeps`` x ``mjx.step`` (lax.scan)."""
+    """Set ``ctrl`` and advance ``n_substeps`` x ``mjx.step`` (lax.scan).
+
+    Matrix products are traced at full float32 precision: on NVIDIA GPUs XLA otherwise runs float32 matmuls in
+    TF32, and the Newton solver's Hessian / Cholesky in TF32 occasionally produced NaN states on the H200."""
     d = d.replace(ctrl=ctrl)
 
     def body(dd, _):
         return mjx.step(mx, dd), None
 
-    d, _ = jax.lax.scan(body, d, None, length=n_substeps)
+    with jax.default_matmul_precision("highest"):
+        d, _ = jax.lax.scan(body, d, None, length=n_substeps)
     return d
+
+
+# Joint speeds (m/s or rad/s) above this are a diverging simulation, not motion: the grippers move at most
+# 1 cm / 1 degree per 0.02 s control step and scripted or random-action episodes stay below ~25.
+QVEL_LIMIT = 200.0
+
+
+def guarded_physics_step(mx: mjx.Model, d: mjx.Data, ctrl: jax.Array,
+                         n_substeps: int = N_SUBSTEPS) -> tuple[mjx.Data, jax.Array]:
+    """``physics_step`` that never hands on a diverged state.
+
+    If the new state has a non-finite or exploding (|qvel| > ``QVEL_LIMIT``) coordinate, the previous state
+    (with the new ``ctrl``) is kept instead and ``failed`` is True; the env then ends the episode as a failure.
+    Without this a single diverged env out of thousands turns every observation-normaliser statistic,
+    discriminator input and gradient of the update into NaN."""
+    nd = physics_step(mx, d, ctrl, n_substeps)
+    ok = jnp.all(jnp.isfinite(nd.qpos)) & jnp.all(jnp.isfinite(nd.qvel)) & (jnp.max(jnp.abs(nd.qvel)) < QVEL_LIMIT)
+    prev = d.replace(ctrl=ctrl)
+    return jax.tree.map(lambda a, b: jnp.where(ok, a, b), nd, prev), ~ok
 
 
 def make_data(m: mujoco.MjModel, mx: mjx.Model, qpos: jax.Array, ctrl: jax.Array, template: mjx.Data) -> mjx.Data:

@@ -334,7 +334,7 @@ class SeqManip(CollabEnv):
             ctrl = ctrl.at[g.act + 6].set(mc.MAX_GAP)
         d = mc.make_data(m, self.mx, qpos, ctrl, self._template)
         zero = jnp.zeros(())
-        info = {"t": jnp.zeros((), jnp.int32), "human_grasp": zero, "robot_grasp": zero,
+        info = {"t": jnp.zeros((), jnp.int32), "failed": zero, "human_grasp": zero, "robot_grasp": zero,
                 "human_handle": zero, "robot_handle": zero, "obj_last": zero, "handle_last": zero,
                 "opening": zero}
         metrics = {"success": zero, "handover": zero, "opened_by": zero, "placed_by": zero,
@@ -385,7 +385,7 @@ class SeqManip(CollabEnv):
         d = state.pipeline_state
         ctrl = mc.apply_gripper_action(d.ctrl, a_h, h)
         ctrl = mc.apply_gripper_action(ctrl, a_r, r)
-        d = mc.physics_step(self.mx, d, ctrl, self.n_substeps)
+        d, failed = mc.guarded_physics_step(self.mx, d, ctrl, self.n_substeps)
 
         h_grasp, r_grasp = mc.is_grasping(d, h, OBJ), mc.is_grasping(d, r, OBJ)
         h_touch, r_touch = self._any_touch(d, h, OBJ), self._any_touch(d, r, OBJ)
@@ -411,9 +411,10 @@ class SeqManip(CollabEnv):
         succ = (inside & free & (opening < CLOSED_TOL) & (speed < REST_SPEED)).astype(jnp.float32)
         m["success"] = jnp.maximum(m["success"], succ)
         t = info["t"] + 1
-        done = ((m["success"] > 0) | (t >= self.max_episode_steps)).astype(jnp.float32)
+        done = ((m["success"] > 0) | (t >= self.max_episode_steps) | failed).astype(jnp.float32)
         f = lambda x: x.astype(jnp.float32)
-        info = dict(info, t=t, human_grasp=f(h_grasp), robot_grasp=f(r_grasp), human_handle=f(h_handle),
+        info = dict(info, t=t, failed=f(failed), human_grasp=f(h_grasp), robot_grasp=f(r_grasp),
+                    human_handle=f(h_handle),
                     robot_handle=f(r_handle), obj_last=obj_last, handle_last=handle_last, opening=opening)
         return state.replace(pipeline_state=d, obs=self._obs(d, info), reward=succ, done=done,
                              metrics=m, info=info)

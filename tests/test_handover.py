@@ -130,3 +130,18 @@ def test_classify_strategy_thresholds(env):
 def test_render(env, first):
     img = env.render(first[0], width=64, height=48)
     assert img.shape == (48, 64, 3) and img.dtype == np.uint8 and img.max() > 0
+
+
+def test_diverged_physics_step_ends_the_episode_with_finite_state(env):
+    """A step whose simulation diverges (here: the bar thrown at 1e4 m/s) keeps the previous state, reports
+    ``failed`` and ends the episode, so no NaN or exploding observation reaches the trainer."""
+    s = env.reset(jax.random.PRNGKey(0))
+    step = jax.jit(env.step)
+    ok = step(s, jnp.zeros(env.action_size))
+    assert float(ok.info["failed"]) == 0.0 and float(ok.done) == 0.0
+    d = s.pipeline_state
+    bad = s.replace(pipeline_state=d.replace(qvel=d.qvel.at[:].set(1e4)))
+    nxt = step(bad, jnp.zeros(env.action_size))
+    assert float(nxt.info["failed"]) == 1.0 and float(nxt.done) == 1.0
+    assert np.all(np.isfinite(np.asarray(nxt.obs)))
+    np.testing.assert_array_equal(np.asarray(nxt.pipeline_state.qpos), np.asarray(d.qpos))

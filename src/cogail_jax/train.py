@@ -222,7 +222,8 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             done = nxt.done > 0
             tr = {"obs": env_state.obs, "z": z, "hist": hist, "prev_ah": prev_ah, "first": env_state.info["t"] == 0,
                   "action": a, "act": act, "logp": logp, "value": value, "done": done.astype(jnp.float32),
-                  "success": nxt.metrics["success"] * done}
+                  "success": nxt.metrics["success"] * done,
+                  "env_failed": nxt.info.get("failed", jnp.zeros(done.shape))}
             z_new, counter = new_codes(counter, done, k_code)
 
             def pick(r, n):
@@ -385,6 +386,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(state.params)]))
         metrics = {**inner_m, **ppo_m, "reward": r_raw.mean(), "episodes": episodes,
                    "episode_success": traj["success"].sum() / jnp.maximum(episodes, 1.0),
+                   "env_failures": traj["env_failed"].sum(),  # MJX steps that diverged (episode ended)
                    "nonfinite": (~finite).astype(jnp.float32)}
         return state.replace(update=state.update + 1), metrics
 

@@ -32,3 +32,22 @@ def test_paper_help():
     with pytest.raises(SystemExit) as e:
         paper.main(["--help"])
     assert e.value.code == 0
+
+
+def test_merge_adds_side_by_side_runs_to_the_tables(tmp_path):
+    """`paper.py --merge DIR...` (runs made side by side by experiments/gpu_grid.sh) adds each DIR's paper.json
+    to --out's, keeps what --out had, trains nothing, and skips entries that are not result folders."""
+    import json
+
+    out, a, b = tmp_path / "out", tmp_path / "a", tmp_path / "b"
+    for d, res in ((out, {"fetchq/cogail/uniform": _res(0.55, 0.1)}), (a, {"handover/cogail/uniform": _res(0.4, 0.2)}),
+                   (b, {"handover/diayn/uniform": _res(0.46, 0.3)})):
+        d.mkdir()
+        (d / "paper.json").write_text(json.dumps(res))
+    (tmp_path / "a.log").write_text("not a folder")
+    assert paper.main(["--out", str(out), "--merge", str(a), str(b), str(tmp_path / "a.log")]) == 0
+    merged = json.loads((out / "paper.json").read_text())
+    assert set(merged) == {"fetchq/cogail/uniform", "handover/cogail/uniform", "handover/diayn/uniform"}
+    t1 = (out / "table1_replay.md").read_text()
+    assert "| cogail | 55.0 +- 1.0 | 53.3 +- 4.4 | 40.0 +- 1.0 | 43.9 +- 6.3 |" in t1
+    assert "| diayn | - | 44.4 +- 8.4 | 46.0 +- 1.0 | 22.7 +- 1.5 |" in t1

@@ -12,9 +12,9 @@ from cogail_jax import data
 for t in ("fetchq", "handover", "seqmanip"):
     data.ensure_default_demos(cogail_envs.make_env(t), "train")
 PY
-CUDA_VISIBLE_DEVICES=0 timeout ${BENCH_T:-240} python3 -m cogail_jax.bench handover "$OUT/bench-handover.json" \
+CUDA_VISIBLE_DEVICES=0 timeout ${BENCH_T:-400} python3 -m cogail_jax.bench handover "$OUT/bench-handover.json" \
   --sizes 8192 --unroll 10 > /tmp/bench-handover.log 2>&1 &
-CUDA_VISIBLE_DEVICES=1 timeout ${BENCH_T:-240} python3 -m cogail_jax.bench seqmanip "$OUT/bench-seqmanip.json" \
+CUDA_VISIBLE_DEVICES=1 timeout ${BENCH_T:-400} python3 -m cogail_jax.bench seqmanip "$OUT/bench-seqmanip.json" \
   --sizes 8192 --unroll 10 > /tmp/bench-seqmanip.log 2>&1 &
 wait
 grep -v -i warp /tmp/bench-handover.log | tail -6; grep -v -i warp /tmp/bench-seqmanip.log | tail -6

@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # Several paper runs side by side on the device machine (experiments/paper.py, 3 seeds each), each job its own
 # process and results folder; small runs (64 envs per seed) leave a GPU mostly idle, so several share one.
-#   JOBS="0|handover|cogail,bc_single|uniform 1|fetchq|ma_gail|uniform,D1,D2" T=540 bash experiments/gpu_grid.sh
+#   JOBS="0|handover|cogail,bc_single|uniform 1|fetchq|ma_gail|uniform,D1,D2" T=480 bash experiments/gpu_grid.sh
 # A job is GPU|task|methods|mixes. Each writes /tmp/grid/<task>-<methods>-<mixes>/paper.json; everything but
 # checkpoints comes back in $OUT/grid.tgz. Merge here with
 #   python experiments/paper.py --out docs/results/paper --merge DIR...
-# Runs resume, so calling again with the same JOBS on a warm machine finishes what a time limit cut.
+# Runs resume, so calling again with the same JOBS on a warm machine finishes what a time limit cut. Keep T
+# about 100 s under the device call's limit: demonstrations, wheel install and packing come on top of it.
 set -uo pipefail
 source experiments/gpu_env.sh
 mkdir -p /tmp/grid
@@ -29,7 +30,7 @@ start=$(date +%s)
 for job in $JOBS; do
   IFS='|' read -r gpu task methods mixes <<< "$job"
   name=$task-${methods//,/-}-${mixes//,/-}
-  CUDA_VISIBLE_DEVICES=$gpu timeout ${T:-540} python3 experiments/paper.py --tasks $task --methods $methods \
+  CUDA_VISIBLE_DEVICES=$gpu timeout ${T:-480} python3 experiments/paper.py --tasks $task --methods $methods \
     --mixes $mixes --eval-every ${EVERY:-3} ${EXTRA:-} --out /tmp/grid/$name > /tmp/grid/$name.log 2>&1 &
 done
 wait

@@ -74,7 +74,9 @@ def _shim_jax_for_brax() -> None:
 def brax_ppo_throughput(env, num_envs: int, unroll_length: int = 94, num_minibatches: int = 4,
                         epochs: int = 4, updates: int = 4) -> dict:
     """The peer: brax's own PPO trainer on the same env, batch and network sizes, with the env's fixed
-    reward (fetchq: the success flag). Throughput is measured between its last two progress reports."""
+    reward (fetchq: the success flag). Throughput is measured between its last two progress reports. Its
+    evaluation episodes are cut to 100 steps (training is unchanged): brax evaluates with a separately compiled
+    full-episode rollout, which on the 600-step MJX tasks took longer than the rows it brackets."""
     import functools
 
     from brax.training.agents.ppo import networks as ppo_networks
@@ -87,7 +89,7 @@ def brax_ppo_throughput(env, num_envs: int, unroll_length: int = 94, num_minibat
     t0 = time.time()
     ppo.train(
         environment=env, num_timesteps=per_update * updates * 2, num_envs=num_envs,
-        episode_length=env.max_episode_steps, unroll_length=unroll_length,
+        episode_length=min(env.max_episode_steps, 100), unroll_length=unroll_length,
         batch_size=max(1, num_envs // num_minibatches), num_minibatches=num_minibatches,
         num_updates_per_batch=epochs, num_evals=3, num_eval_envs=min(num_envs, 128), seed=0,
         network_factory=functools.partial(ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=(128,) * 4,
@@ -99,7 +101,7 @@ def brax_ppo_throughput(env, num_envs: int, unroll_length: int = 94, num_minibat
 
 
 def main(task: str = "fetchq", sizes=(64, 1024, 8192), out: str | None = None, env_only: bool = False,
-         steps: int = 200, peer: bool = True, unroll: int = 94, calls: int = 3) -> list[dict]:
+         steps: int = 200, peer: bool = True, unroll: int = 94, calls: int = 3, train_rows: bool = True) -> list[dict]:
     import cogail_envs
 
     from . import data, train
@@ -111,6 +113,7 @@ def main(task: str = "fetchq", sizes=(64, 1024, 8192), out: str | None = None, e
         r = env_throughput(env, n, steps=steps)
         rows.append({"task": task, "kind": "env-only", **r})
         print(json.dumps(rows[-1]), flush=True)
+        _write(rows, out)
     if env_only:
         _table(rows, out)
         return rows
@@ -119,17 +122,19 @@ def main(task: str = "fetchq", sizes=(64, 1024, 8192), out: str | None = None, e
     expert = train.expert_arrays(demos, base.history)
     norm = train.fit_normalizer(expert, base.obs_std_floor)
     for n in sizes:
-        for seeds in ((300,), (300, 400, 500)):
+        for seeds in ((300,), (300, 400, 500)) if train_rows else ():
             cfg = base.replace(num_envs=n, seeds=seeds, unroll_length=unroll, updates_per_call=min(5, calls + 1),
                                total_steps=n * unroll * 100,
                                num_minibatches=4 if (n * unroll) % 4 == 0 else 1)
             r = train_throughput(cfg, env, expert, norm, calls=calls)
             rows.append({"task": task, "kind": "co-gail train_step", **r})
             print(json.dumps(rows[-1]), flush=True)
+            _write(rows, out)
         if peer:
             r = brax_ppo_throughput(env, n, unroll_length=unroll, num_minibatches=4 if n % 4 == 0 else 1)
             rows.append({"task": task, "kind": "brax ppo (peer)", **r})
             print(json.dumps(rows[-1]), flush=True)
+            _write(rows, out)
     _table(rows, out)
     return rows
 
@@ -139,6 +144,11 @@ def _table(rows, out):
     for r in rows:
         print(f"{r['task']:9} {r['kind']:20} {r['num_envs']:>6} {r.get('seeds', 1):>5} "
               f"{r['env_steps_per_s']:>12.3g} {r['compile_s']:>9.1f}")
+    _write(rows, out)
+
+
+def _write(rows, out):
+    """The JSON is rewritten after every row, so a run cut by a time limit keeps the rows it finished."""
     if out:
         Path(out).parent.mkdir(parents=True, exist_ok=True)
         Path(out).write_text(json.dumps({"device": str(jax.devices()[0]), "rows": rows}, indent=2))
@@ -151,13 +161,14 @@ def add_arguments(p) -> None:
     p.add_argument("--steps", type=int, default=200, help="env steps per timed call")
     p.add_argument("--env-only", action="store_true", help="skip the train_step rows")
     p.add_argument("--no-peer", action="store_true", help="skip brax's PPO")
+    p.add_argument("--peer-only", action="store_true", help="skip the Co-GAIL train_step rows (env-only and brax)")
     p.add_argument("--unroll", type=int, default=94, help="rollout length per update")
     p.add_argument("--calls", type=int, default=3, help="timed train_step calls per row")
 
 
 def run_from_args(a) -> None:
     main(a.task, tuple(int(x) for x in a.sizes.split(",")), a.out, a.env_only, a.steps, not a.no_peer, a.unroll,
-         a.calls)
+         a.calls, not a.peer_only)
 
 
 def cli(argv=None):

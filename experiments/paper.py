@@ -113,6 +113,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="results/paper")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="override config fields")
     p.add_argument("--eval-every", type=int, default=1, help="evaluate every k-th checkpoint (default: all)")
+    p.add_argument("--force", action="store_true", help="redo runs already in <out>/paper.json")
     p.add_argument("--merge", nargs="+", default=[], metavar="DIR",
                    help="train nothing: add the paper.json of each DIR (runs made side by side, e.g. by "
                         "experiments/gpu_grid.sh) to --out's and rewrite the tables")
@@ -139,6 +140,9 @@ def main(argv=None) -> int:
     for t in tasks:
         for m in methods:
             for mix in (a.mixes.split(",") if t == "fetchq" else ["uniform"]):
+                if f"{t}/{m}/{mix}" in results and not a.force:
+                    print(f"{t:9} {m:12} {mix:8} already in {out / 'paper.json'} (--force to redo)", flush=True)
+                    continue
                 res = run_one(t, m, mix, seeds, out, extra, a.eval_every)
                 results[f"{t}/{m}/{mix}"] = {k: res[k] for k in ("replay_success", "interpolation_success",
                                                                   "strategy_distribution", "best_checkpoint")}

@@ -66,20 +66,24 @@ action noise. Motions are proportional control with velocity and acceleration li
 minimum-jerk-like speed profiles). Waiting phases are gated: their timer only runs while the awaited
 condition holds (e.g. the drawer is open and held), so every hand-off has a reaction delay.
 
-1. human-hands-over: the human picks the bar up and holds it out at the handover spot; the robot grasps
-   its far end; the human lets go, backs off, grasps the handle and pulls the drawer open while the
+1. human-hands-over: the human picks the bar up and carries it out to the handover spot; once the human
+   has come past the middle of the table towards it (TCP y > ``CUE_Y``) the robot reacts, grasps the
+   bar's far end; the human lets go, backs off, grasps the handle and pulls the drawer open while the
    robot hovers with the bar; the robot lowers the bar over the drawer and drops it; the robot retreats
    and the human pushes the drawer shut.
-2. robot-opens: the human picks the bar up and carries it to a waiting point near the drawer; the robot,
-   seeing the human coming, grasps the handle and pulls the drawer open; the human lowers the bar over the
-   drawer and drops it, then retreats; the robot pushes the drawer shut.
+2. robot-opens: the human picks the bar up and carries it to a waiting point near the drawer; once the
+   human holds still there the robot reacts, grasps the handle and pulls the drawer open; the human lowers
+   the bar over the drawer and drops it, then retreats; the robot pushes the drawer shut.
 
-Measured (CPU, 2 cores, ``cogail_jax.demos.team_rollout_fn`` in 4 chunks of 256, uniform mix): 1024 of
-1024 scripted episodes succeed and all are classified as their intended strategy; length 416.9 +- 32.5
-steps (339-502) for human-hands-over, 385.7 +- 29.9 (309-473) for robot-opens, 401 overall (paper: 404);
-that was with the earlier 4 x 5 ms / 4 / 8 / condim-4 settings. With the current defaults 64 + 128
-episodes (seeds 0 and 1, ``experiments/mjx_settings.py``): all succeed and are classified as intended,
-mean length 417.0 (human-hands-over) / 386.0 (robot-opens), 400.5 overall.
+The robot's cues are things it can see in the state (where the human's hand is, whether it has
+stopped), so a policy reading the state and the human's recent history can tell the two strategies apart
+when it has to act. (Before the 5th session the robot started on the human's lift in strategy 1 and 20-60
+steps after it in strategy 2: while the two humans' motions were still alike, the demonstrated robots
+already did different things, and behaviour cloning averaged them.)
+
+Measured (CPU, ``cogail_jax.demos.generate``, uniform mix, seeds 100-103, 4 x 256 episodes): 1024 of 1024
+scripted episodes succeed and all are classified as their intended strategy; length 456.1 +- 35.7 steps
+(370-548) for human-hands-over, 369.5 +- 28.3 (306-454) for robot-opens, 411.9 overall (paper: 404).
 ``python -m cogail_envs.seqmanip`` prints the MJCF.
 
 Rendering uses :class:`mjx_common.FrameRenderer` (default camera ``drawer``: the drawer front seen from
@@ -135,6 +139,7 @@ OPEN_THRESH = 0.08      # opening (m) that counts as "the drawer was opened"
 CLOSED_TOL = 0.01       # opening (m) below which the drawer counts as closed
 REST_SPEED = 0.05       # object speed (m/s) below which it "rests"
 DRAWER_OPEN_MIN = 0.10  # opening the scripted droppers wait for
+CUE_Y = -0.13           # s1: the scripted robot starts once the human's TCP is past this y (spot side)
 WALL_TOP = FLOOR_Z + WALL_H
 
 
@@ -444,9 +449,9 @@ class SeqManip(CollabEnv):
             vmax=u(ks[9], 0.45, 0.85, (2,)),
             amax=u(ks[10], 0.06, 0.12, (2,)),
             gain=u(ks[11], 0.12, 0.22, (2,)),
-            # robot: reaction to the human's lift (s1) / to the human heading for the drawer (s2)
-            delay=jax.random.randint(ks[12], (2,), jnp.array([2, 4]), jnp.array([15, 25]))
-            + jnp.array([0, 1]) * (strategy == 2) * jax.random.randint(ks[19], (), 20, 60),
+            # robot: reaction delay once its cue holds (s1 the human carrying past CUE_Y, s2 the human at
+            # its waiting point)
+            delay=jax.random.randint(ks[12], (2,), jnp.array([2, 3]), jnp.array([15, 12])),
             react=jax.random.randint(ks[13], (2,), 2, 10),
             lift=u(ks[14], 0.04, 0.09),
             pause=jax.random.randint(ks[15], (), 0, 12),
@@ -568,7 +573,11 @@ class SeqManip(CollabEnv):
             R_HOLD_OPEN: 0.0, R_PUSH: 0.0}, jnp.nan)
         grip_r = jnp.where(((pr >= R_CLOSE) & (pr <= R_LOWER)) | ((pr >= R_GRIP_HANDLE) & (pr <= R_PUSH)), -1.0, 1.0)
         gate_r = self._select(pr, {
-            R_WAIT: jnp.where(s_r == 0, ph >= H_LIFT, ph >= H_CARRY_WAIT),
+            # the robot reacts to what it can see (so a policy reading the state can tell the strategies
+            # apart when the robot has to act): s1, the human carrying the bar has come past the middle
+            # towards it; s2, the human holds the bar still at its waiting point by the drawer
+            R_WAIT: jnp.where(s_r == 0, (ph >= H_CARRY) & (ph <= H_OFFER) & (tcp[0, 1] > CUE_Y),
+                              (ph == H_WAIT_OPEN) | ((ph == H_CARRY_WAIT) & near(0, ts.wait_pt[0], 0.03))),
             R_WAIT_OPEN: (opening >= DRAWER_OPEN_MIN) & (ph == H_HOLD_OPEN),
             R_HOLD_OPEN: placed & (ph == H_RETREAT)}, True)
         adv_r = self._select(pr, {

@@ -51,3 +51,26 @@ def test_merge_adds_side_by_side_runs_to_the_tables(tmp_path):
     t1 = (out / "table1_replay.md").read_text()
     assert "| cogail | 55.0 +- 1.0 | 53.3 +- 4.4 | 40.0 +- 1.0 | 43.9 +- 6.3 |" in t1
     assert "| diayn | - | 44.4 +- 8.4 | 46.0 +- 1.0 | 22.7 +- 1.5 |" in t1
+
+
+def test_runs_already_in_paper_json_are_skipped(tmp_path, monkeypatch, capsys):
+    """A resumed grid call (experiments/gpu_grid.sh) only finishes what was cut: an entry already in
+    <out>/paper.json is not trained or evaluated again unless --force is given."""
+    import json
+
+    (tmp_path / "paper.json").write_text(json.dumps({"fetchq/cogail/uniform": _res(0.6, 0.5)}))
+    calls = []
+
+    def fake_run_one(task, method, mix, *a, **k):
+        calls.append((task, method, mix))
+        return {**_res(0.1, 0.1), "strategy_distribution": {}, "best_checkpoint": {}}
+
+    monkeypatch.setattr(paper, "run_one", fake_run_one)
+    argv = ["--tasks", "fetchq", "--methods", "cogail,ma_gail", "--out", str(tmp_path)]
+    paper.main(argv)
+    assert calls == [("fetchq", "ma_gail", "uniform")]
+    assert "already in" in capsys.readouterr().out
+    saved = json.loads((tmp_path / "paper.json").read_text())
+    assert saved["fetchq/cogail/uniform"]["replay_success"]["mean"] == 0.6
+    paper.main(argv + ["--force"])
+    assert calls[1:] == [("fetchq", "cogail", "uniform"), ("fetchq", "ma_gail", "uniform")]

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from cogail_envs import mjx_common as mc
-from cogail_envs.seqmanip import H_WAIT_OPEN, TRAVEL, SeqManip
+from cogail_envs.seqmanip import CUE_Y, H_CARRY_WAIT, H_WAIT_OPEN, R_WAIT, TRAVEL, SeqManip
 
 REPEATS = 3  # scripted episodes per strategy
 RELEASE_AT = 300  # step at which the "drop" episode opens the human's gripper
@@ -49,7 +49,8 @@ def rollout(env):
             new_state = jax.tree.map(lambda o, n: jnp.where(finished, o, n), state, nxt)
             new_metrics = jax.tree.map(lambda o, n: jnp.where(finished, o, n), metrics, nxt.metrics)
             trace = dict(z=env._obj_pos(nxt.pipeline_state)[2], success=nxt.metrics["success"],
-                         done=nxt.done, finished=finished, phase_h=ts.phase[0],
+                         done=nxt.done, finished=finished, phase_h=ts.phase[0], phase_r=ts.phase[1],
+                         human_y=mc.tcp_pos(state.pipeline_state, env.human)[1],
                          opening=env._opening(nxt.pipeline_state))
             return (new_state, ts, finished | (nxt.done > 0), new_metrics), trace
 
@@ -109,6 +110,22 @@ def test_scripted_team_succeeds_with_each_strategy(rollout):
     length = (~trace["finished"][:n]).sum(1)
     assert np.all((length > 250) & (length < 600))
     assert np.all(trace["opening"][:n].max(1) <= TRAVEL + 1e-3)
+
+
+def test_scripted_robot_waits_for_a_cue_it_can_see(rollout):
+    """The scripted robot leaves its waiting phase only once the strategy shows in the state: human-hands-over,
+    the human's hand (carrying the bar) is past CUE_Y towards the robot; robot-opens, the human has reached
+    its waiting point by the drawer. A robot that moved on the human's lift would fail this."""
+    sid, _, _, trace, _ = rollout
+    for i in range(2 * REPEATS):
+        start = int(np.argmax(trace["phase_r"][i] != R_WAIT))
+        assert start > 0, "the robot never left its waiting phase"
+        if sid[i] == 1:
+            assert trace["human_y"][i, start] > CUE_Y
+            assert np.all(trace["human_y"][i, :start - 20] < CUE_Y + 0.02)  # it did wait for the human
+        else:
+            assert trace["phase_h"][i, start] in (H_CARRY_WAIT, H_WAIT_OPEN)
+            assert trace["human_y"][i, start] < CUE_Y - 0.01  # the human stays on its side
 
 
 def test_nothing_done_never_succeeds(rollout):

@@ -2,7 +2,7 @@
 # Several paper runs side by side on the device machine (experiments/paper.py, 3 seeds each), each job its own
 # process and results folder; small runs (64 envs per seed) leave a GPU mostly idle, so several share one.
 #   JOBS="0|handover|cogail,bc_single|uniform 1|fetchq|ma_gail|uniform,D1,D2" T=480 bash experiments/gpu_grid.sh
-# A job is GPU|task|methods|mixes. Each writes /tmp/grid/<task>-<methods>-<mixes>/paper.json; everything but
+# A job is GPU|task|methods|mixes[|overrides] (overrides: FIELD=VALUE joined by '+'). Each writes /tmp/grid/<task>-<methods>-<mixes>/paper.json; everything but
 # checkpoints comes back in $OUT/grid.tgz. Merge here with
 #   python experiments/paper.py --out docs/results/paper --merge DIR...
 # Runs resume, so calling again with the same JOBS on a warm machine finishes what a time limit cut. Keep T
@@ -28,10 +28,16 @@ for job in sys.argv[1].split():
 PY
 start=$(date +%s)
 for job in $JOBS; do
-  IFS='|' read -r gpu task methods mixes <<< "$job"
+  IFS='|' read -r gpu task methods mixes sets <<< "$job"
   name=$task-${methods//,/-}-${mixes//,/-}
+  setargs=()
+  if [ -n "${sets:-}" ]; then  # optional 5th field: config overrides joined by '+', e.g. bc_code_noise=0.3+lambda_r=5
+    IFS='+' read -ra kv <<< "$sets"
+    for x in "${kv[@]}"; do setargs+=(--set "$x"); done
+    name=$name-${sets//[=+]/_}
+  fi
   CUDA_VISIBLE_DEVICES=$gpu timeout ${T:-480} python3 experiments/paper.py --tasks $task --methods $methods \
-    --mixes $mixes --eval-every ${EVERY:-3} ${EXTRA:-} --out /tmp/grid/$name > /tmp/grid/$name.log 2>&1 &
+    --mixes $mixes --eval-every ${EVERY:-3} ${EXTRA:-} "${setargs[@]}" --out /tmp/grid/$name > /tmp/grid/$name.log 2>&1 &
 done
 wait
 echo "WALL grid: $(( $(date +%s) - start )) s"

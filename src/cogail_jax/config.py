@@ -68,6 +68,8 @@ class TrainConfig:
     code_init: str = "pca"  # per-demo codes start at: "pca" (the demos' trajectories, 2 principal components,
     #   rank-spread over the code square: similar demos get nearby codes) or "random" (0.1 N(0, 1))
     bc_codes: str = "demo"  # "demo": one learned code per demonstration; "psi": psi's code of each step
+    bc_code_noise: float = 0.0  # std of Gaussian noise on a demonstration's code where the co-policy acts on it
+    #   (BC, L_a): blurs what a code can say about one demonstration (its timing) and keeps its strategy
     # evaluation
     eval_codes: int = 100
 

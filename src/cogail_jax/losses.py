@@ -108,7 +108,7 @@ def bc_loss(psi_apply, actor_apply, params, batch, use_code, spread_coef=0.0, co
     if codes == "demo":
         all_codes = jnp.tanh(params["codes"])
         z = all_codes[batch["demo"]]
-        mean, _ = actor_apply(params["actor"], batch["obs"], z)
+        mean, _ = actor_apply(params["actor"], batch["obs"], z + batch.get("code_noise", 0.0))
         recog = jnp.mean(jnp.sum((z_psi - jax.lax.stop_gradient(z)) ** 2, -1))
         return jnp.mean(jnp.sum((pick(mean) - target) ** 2, -1)) + recog + 10.0 * code_spread(all_codes)
     mean, _ = actor_apply(params["actor"], batch["obs"], z_psi)

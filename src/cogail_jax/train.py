@@ -196,8 +196,11 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
 
     def sample_expert(norm, expert, key, n):
         i = jax.random.randint(key, (n,), 0, expert["obs"].shape[0])
-        return {"obs": normalize(norm, expert["obs"][i]), "ah": expert["ah"][i], "ar": expert["ar"][i],
-                "hist": hist_input(norm, expert["hist"][i]), "prev_ah": expert["prev_ah"][i], "demo": expert["demo"][i]}
+        b = {"obs": normalize(norm, expert["obs"][i]), "ah": expert["ah"][i], "ar": expert["ar"][i],
+             "hist": hist_input(norm, expert["hist"][i]), "prev_ah": expert["prev_ah"][i], "demo": expert["demo"][i]}
+        if cfg.bc_code_noise > 0:
+            b["code_noise"] = cfg.bc_code_noise * jax.random.normal(jax.random.fold_in(key, 1), (n, cfg.code_dim))
+        return b
 
     # ------------------------------------------------------------------ one Co-GAIL update
     def rollout(state: TrainState, key):

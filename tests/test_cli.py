@@ -110,7 +110,7 @@ def test_brax_shim_places_like_pmap_so_the_epoch_compiles_once():
     compiles = []
     jax.monitoring.register_event_duration_secs_listener(
         lambda name, *a, **k: compiles.append(name) if "backend_compile" in name else None)
-    epoch = jax.pmap(lambda t: jax.tree.map(lambda a: a * 2, t), donate_argnums=0)
+    epoch = jax.pmap(lambda t: jax.tree.map(lambda a: a * 2, t), axis_name="i", donate_argnums=0)
     state = bench._replicate_for_pmap({"w": jnp.ones(3), "n": jnp.zeros((2, 2))}, jax.local_devices()[:1])
     assert state["w"].shape == (1, 3) and state["n"].shape == (1, 2, 2)
     state = jax.block_until_ready(epoch(state))

@@ -171,3 +171,26 @@ def test_pca_code_init_groups_demos_by_strategy(tiny_cfg, fetchq, setup):
     assert np.abs(codes[0] - codes[1]).max() > 1e-4  # the noise differs per seed
     with pytest.raises(Exception, match="code-init"):
         tiny_cfg.replace(code_init="kmeans").validate()
+
+
+def test_bc_code_noise_changes_what_the_policy_is_fit_on(tiny_cfg, fetchq, setup):
+    """bc_code_noise: the co-policy's BC / L_a loss is taken on (demo code + noise); zero noise is the plain
+    loss; a negative value is refused."""
+    from cogail_jax import losses
+    from cogail_jax.config import ConfigError
+
+    init, _, expert = setup
+    state = init(tiny_cfg.seeds, expert)
+    p = jax.tree.map(lambda x: x[0], state.params)
+    _, _, nets = train.make_train_fns(tiny_cfg, fetchq, train.fit_normalizer(expert))
+    psi, actor = nets["psi"].apply, nets["actor"].apply
+    n = 16
+    b = {"obs": expert["obs"][:n], "ah": expert["ah"][:n], "ar": expert["ar"][:n],
+         "hist": expert["hist"][:n].reshape(n, -1), "prev_ah": expert["prev_ah"][:n], "demo": expert["demo"][:n]}
+    clean = float(losses.bc_loss(psi, actor, p, b, True, codes="demo"))
+    zero = float(losses.bc_loss(psi, actor, p, {**b, "code_noise": np.zeros((n, 2), np.float32)}, True, codes="demo"))
+    noisy = float(losses.bc_loss(psi, actor, p, {**b, "code_noise": np.full((n, 2), 0.5, np.float32)}, True,
+                                 codes="demo"))
+    assert zero == pytest.approx(clean, rel=1e-6) and abs(noisy - clean) > 1e-4
+    with pytest.raises(ConfigError, match="bc_code_noise"):
+        tiny_cfg.replace(bc_code_noise=-0.1).validate()

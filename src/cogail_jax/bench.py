@@ -60,19 +60,24 @@ def train_throughput(cfg, env, expert, norm, calls: int = 3, devices=None) -> di
             "updates_per_s": calls * cfg.updates_per_call / dt, "compile_s": compile_s}
 
 
-def _replicate_for_pmap(x, devices):
+def _replicate_for_pmap(x, devices, axis_name="i"):
     """``jax.device_put_replicated`` (removed from jax, still called by brax 0.14.2's PPO): stack ``x`` once per
-    device and place it with the sharding that ``jax.pmap`` gives its outputs (taken from a pmapped identity).
-    Placing it any other way (the first shim put the stacked array on one device) makes the
-    pmapped training epoch compile twice: once for the placed input, once more for its own output; the second
-    compile landed inside the timed epoch and made brax look ~100x slower than it is."""
-    sharding = jax.pmap(lambda a: a, devices=devices)(jnp.zeros(len(devices))).sharding
+    device and place it with the sharding that a ``jax.pmap`` over ``axis_name`` gives its outputs (taken from
+    a pmapped identity: a ``NamedSharding`` whose mesh axis is ``axis_name``). brax's training epoch is a pmap
+    over axis "i" that is fed its own outputs, and the new jit-based pmap keys its compilation cache on the
+    input sharding: placed any other way (our first shim put the stack on one device; a mesh axis of another
+    name does the same), the state of the second epoch differs from the first's and the epoch compiles again,
+    inside the timed epoch: brax's figure came out ~100x too low."""
+    sharding = jax.pmap(lambda a: a, axis_name=axis_name, devices=devices)(jnp.zeros(len(devices))).sharding
     return jax.tree.map(lambda a: jax.device_put(jnp.stack([jnp.asarray(a)] * len(devices)), sharding), x)
 
 
 def _shim_jax_for_brax() -> None:
     if not hasattr(jax, "device_put_replicated"):
-        jax.device_put_replicated = _replicate_for_pmap
+        from brax.training.agents.ppo import train as ppo
+
+        jax.device_put_replicated = lambda x, devices: _replicate_for_pmap(
+            x, devices, getattr(ppo, "_PMAP_AXIS_NAME", "i"))
 
 
 def brax_ppo_throughput(env, num_envs: int, unroll_length: int = 94, num_minibatches: int = 4,

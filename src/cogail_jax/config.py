@@ -128,6 +128,8 @@ class TrainConfig:
                 raise ConfigError(f"{name.replace('_', '-')} must be positive, got {getattr(self, name)}")
         if not self.obs_std_floor > 0:
             raise ConfigError(f"obs_std_floor must be positive, got {self.obs_std_floor}")
+        if self.bc_code_noise < 0:
+            raise ConfigError(f"bc_code_noise must be >= 0, got {self.bc_code_noise}")
         if self.history < 0 or self.bc_steps < 0:
             raise ConfigError("history and bc-steps must be >= 0")
         if self.steps_per_update % self.num_minibatches:

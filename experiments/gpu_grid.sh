@@ -20,7 +20,7 @@ import sys
 import cogail_envs
 from cogail_jax import data
 for job in sys.argv[1].split():
-    _, task, _, mixes = job.split("|")
+    _, task, _, mixes = job.split("|")[:4]
     env = cogail_envs.make_env(task)
     for mix in (mixes.split(",") if task == "fetchq" else ["uniform"]):
         for split in ("train", "heldout"):

@@ -131,10 +131,11 @@ def main(task: str = "fetchq", sizes=(64, 1024, 8192), out: str | None = None, e
     if env_only:
         _table(rows, out)
         return rows
-    demos = data.load_demos(data.ensure_default_demos(env, "train"), env)
-    base = TrainConfig(task=task)
-    expert = train.expert_arrays(demos, base.history)
-    norm = train.fit_normalizer(expert, base.obs_std_floor)
+    if train_rows:  # the demonstrations feed the discriminator and the BC terms; the peer needs none
+        demos = data.load_demos(data.ensure_default_demos(env, "train"), env)
+        base = TrainConfig(task=task)
+        expert = train.expert_arrays(demos, base.history)
+        norm = train.fit_normalizer(expert, base.obs_std_floor)
     for n in sizes:
         for seeds in ((300,), (300, 400, 500)) if train_rows else ():
             cfg = base.replace(num_envs=n, seeds=seeds, unroll_length=unroll, updates_per_call=min(5, calls + 1),

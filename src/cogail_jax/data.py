@@ -61,7 +61,7 @@ def save_demos(path: str | os.PathLike, env, episodes, mixture: str = "uniform",
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp = path.with_suffix(f"{path.suffix}.{os.getpid()}.tmp")  # per process: concurrent writers never share it
     with h5py.File(tmp, "w") as f:
         f.attrs.update(task=env.name, schema_version=SCHEMA_VERSION, obs_dim=env.observation_size,
                        human_action_dim=env.human_action_size, robot_action_dim=env.robot_action_size,
@@ -102,7 +102,7 @@ def append_demo(path: str | os.PathLike, env, obs, actions_human, actions_robot,
                                f"({obs.shape[0] or 'T>0'}, {dim}) for task {env.name}")
     check_appendable(path, env)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp = path.with_suffix(f"{path.suffix}.{os.getpid()}.tmp")  # per process: concurrent writers never share it
     if path.exists():
         shutil.copyfile(path, tmp)
     with h5py.File(tmp, "a") as f:

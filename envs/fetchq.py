@@ -184,8 +184,8 @@ class FetchQuest(CollabEnv):
                 carry = carry.at[i].set(jnp.where(pick, k, carry[i]))
                 taken = taken.at[k].set(taken[k] | pick)
                 m["first"] = jnp.where(pick & (m["first"] == 0), i + 1.0, m["first"])
-        m["human_room"] = jnp.where(carry[0] >= 0, carry[0] + 1.0, 0.0)
-        m["robot_room"] = jnp.where(carry[1] >= 0, carry[1] + 1.0, 0.0)
+        m["human_room"] = jnp.where(carry[0] >= 0, carry[0] + 1.0, 0.0).astype(jnp.float32)  # not weak-typed
+        m["robot_room"] = jnp.where(carry[1] >= 0, carry[1] + 1.0, 0.0).astype(jnp.float32)
         for k in range(2):
             treasure = treasure.at[k].set(
                 jnp.where(carry[0] == k, pos[0], jnp.where(carry[1] == k, pos[1], treasure[k]))

@@ -22,6 +22,15 @@ def test_reset_step_shapes(fetchq):
     assert int(s2.info["t"]) == 1
 
 
+def test_step_keeps_the_state_types_of_reset(fetchq):
+    """Same tree, dtypes and weak types after a step as after reset: a jitted consumer (brax's evaluator, a
+    user's scan) fed both would otherwise compile twice (human_room / robot_room came out weak-typed)."""
+    s = jax.jit(fetchq.reset)(jax.random.PRNGKey(0))
+    s2 = jax.jit(fetchq.step)(s, jnp.zeros(fetchq.action_size))
+    sig = lambda st: jax.tree.map(lambda a: (a.shape, a.dtype, a.weak_type), st)  # noqa: E731
+    assert jax.tree.structure(s) == jax.tree.structure(s2) and sig(s) == sig(s2)
+
+
 def test_doors_block_until_button_held(fetchq):
     # an agent walking straight into the left room from its door is blocked while nobody holds the button
     s = fetchq.reset_from(jnp.array([3.0, 6.75, 4.0, 1.0]))

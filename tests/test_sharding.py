@@ -29,7 +29,8 @@ def test_two_devices_match_one(tiny_cfg, tmp_path):
 
 
 def test_sharded_mjx_chunk_has_no_cross_device_collectives(tmp_path):
-    """Each device runs its own seeds: the compiled 2-device handover program has no all-reduce / all-gather.
+    """Each device runs its own seeds: the compiled 2-device handover program has no all-reduce / all-gather, and
+    its output state is placed as its input was (else every run compiled the chunk a second time).
     (Under plain jit sharding propagation MJX's solver loops reduced their stopping test over both devices in
     every iteration: 2 x H200 ran at 0.25x one.)"""
     script = textwrap.dedent("""
@@ -46,7 +47,11 @@ def test_sharded_mjx_chunk_has_no_cross_device_collectives(tmp_path):
                           demos=str(path)).validate()
         s = trainer.build(cfg, need_heldout=False)
         st, ex = trainer.place_on_devices(s.init(cfg.seeds, s.expert), s.expert, "all", 2)
-        txt = s.chunk.lower(st, ex).compile().as_text()
+        compiled = s.chunk.lower(st, ex).compile()
+        txt = compiled.as_text()
+        st2, _ = compiled(st, ex)
+        sig = lambda t: [(x.sharding, x.shape, x.dtype) for x in jax.tree.leaves(t)]
+        assert sig(st2) == sig(st), "the next call would compile again: its inputs are placed differently"
         n = {op: len(re.findall(op + r"(-start)?\\(", txt))
              for op in ("all-reduce", "all-gather", "collective-permute", "all-to-all", "reduce-scatter")}
         print(n)

@@ -130,7 +130,10 @@ def place_on_devices(state, expert, devices, num_seeds):
         return state, expert
     from jax.sharding import NamedSharding, PartitionSpec as P
 
-    state = jax.device_put(state, NamedSharding(mesh, P("seeds")))
+    # Empty leaves (MJX's unused act / mocap / userdata fields, shape (seeds, envs, 0)) leave the sharded program
+    # replicated: placing them so from the start keeps every call's input shardings equal to the previous call's
+    # outputs (placed P("seeds") they made the second call compile the whole chunk again).
+    state = jax.tree.map(lambda x: jax.device_put(x, NamedSharding(mesh, P() if x.size == 0 else P("seeds"))), state)
     expert = jax.device_put(expert, NamedSharding(mesh, P()))
     return state, expert
 

@@ -192,5 +192,12 @@ def test_bc_code_noise_changes_what_the_policy_is_fit_on(tiny_cfg, fetchq, setup
     noisy = float(losses.bc_loss(psi, actor, p, {**b, "code_noise": np.full((n, 2), 0.5, np.float32)}, True,
                                  codes="demo"))
     assert zero == pytest.approx(clean, rel=1e-6) and abs(noisy - clean) > 1e-4
+    # wired into BC pre-training: the same seeds and steps, with noise, fit another actor
+    actors = []
+    for noise in (0.0, 0.5):
+        cfg = tiny_cfg.replace(bc_steps=5, bc_code_noise=noise, seeds=(3,))
+        init_n, _, _ = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
+        actors.append(jax.tree.leaves(init_n(cfg.seeds, expert).params["actor"]))
+    assert max(float(np.abs(a - b).max()) for a, b in zip(*actors)) > 1e-6
     with pytest.raises(ConfigError, match="bc_code_noise"):
         tiny_cfg.replace(bc_code_noise=-0.1).validate()

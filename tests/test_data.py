@@ -76,6 +76,25 @@ def test_default_demos_are_cached(fetchq, tmp_path, monkeypatch):
         assert f.attrs["env_version"] == fetchq.version
 
 
+def test_default_demos_of_another_size_get_their_own_file(fetchq, tmp_path, monkeypatch):
+    """num_demos / ensure_default_demos(num=N): N scripted demos in a file of their own, beside the default."""
+    from cogail_jax.config import ConfigError, TrainConfig
+
+    monkeypatch.setenv("COGAIL_DATA", str(tmp_path))
+    monkeypatch.setitem(data.DEFAULT_NUM, "fetchq", 5)
+    p5 = data.ensure_default_demos(fetchq, "train", verbose=False)
+    p7 = data.ensure_default_demos(fetchq, "train", verbose=False, num=7)
+    assert p7 != p5 and p7.name == "fetchq_uniform_train_7.hdf5" and p5.name == "fetchq_uniform_train.hdf5"
+    assert data.load_demos(p5, fetchq).num == 5 and data.load_demos(p7, fetchq).num == 7
+    assert data.ensure_default_demos(fetchq, "train", verbose=False, num=5) == p5  # the default count: same file
+    from cogail_jax import trainer
+
+    s = trainer.build(TrainConfig(task="fetchq", num_demos=7), need_heldout=False)  # the trainer asks for them
+    assert int(s.expert["demo"].max()) + 1 == 7
+    with pytest.raises(ConfigError, match="num_demos"):
+        TrainConfig(num_demos=-1).validate()
+
+
 def test_ten_thousand_demos_one_call(fetchq):
     from cogail_jax import demos
 

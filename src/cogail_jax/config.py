@@ -22,6 +22,7 @@ class TrainConfig:
     seeds: tuple[int, ...] = (300, 400, 500)
     demos: str | None = None  # training demonstrations (HDF5); default: generated and cached
     heldout: str | None = None  # held-out demonstrations for replay evaluation
+    num_demos: int = 0  # size of the generated default training set (0: the task's default, e.g. 120 for seqmanip)
     mix: str = "uniform"  # strategy mixture of the default datasets (uniform, D1, D2)
     # budget
     total_steps: int = 6_000_000  # env steps per seed
@@ -128,6 +129,8 @@ class TrainConfig:
                 raise ConfigError(f"{name.replace('_', '-')} must be positive, got {getattr(self, name)}")
         if not self.obs_std_floor > 0:
             raise ConfigError(f"obs_std_floor must be positive, got {self.obs_std_floor}")
+        if self.num_demos < 0:
+            raise ConfigError(f"num_demos must be >= 0 (0: the task's default), got {self.num_demos}")
         if self.bc_code_noise < 0:
             raise ConfigError(f"bc_code_noise must be >= 0, got {self.bc_code_noise}")
         if self.history < 0 or self.bc_steps < 0:

@@ -238,8 +238,11 @@ def data_dir() -> Path:
     return Path(os.environ.get("COGAIL_DATA", "data"))
 
 
-def default_demo_path(task: str, split: str, mix: str = "uniform") -> Path:
-    return data_dir() / f"{task}_{mix}_{split}.hdf5"
+def default_demo_path(task: str, split: str, mix: str = "uniform", num: int = 0) -> Path:
+    """The cached default dataset; ``num`` > 0 (other than the task's default count) gets a file of its own."""
+    default = (DEFAULT_NUM if split == "train" else DEFAULT_HELDOUT).get(task)
+    count = f"_{num}" if num and num != default else ""
+    return data_dir() / f"{task}_{mix}_{split}{count}.hdf5"
 
 
 def _stored_version(path: Path) -> str | None:
@@ -253,17 +256,18 @@ def _stored_version(path: Path) -> str | None:
         return None
 
 
-def ensure_default_demos(env, split: str = "train", mix: str = "uniform", verbose: bool = True) -> Path:
-    """Path of the default dataset of a task (``train`` or ``heldout``), generating it on first use."""
+def ensure_default_demos(env, split: str = "train", mix: str = "uniform", verbose: bool = True, num: int = 0) -> Path:
+    """Path of the default dataset of a task (``train`` or ``heldout``), generating it on first use; ``num`` > 0
+    asks for that many scripted demonstrations instead of the task's default count."""
     from . import demos
 
-    path = default_demo_path(env.name, split, mix)
+    path = default_demo_path(env.name, split, mix, num)
     if path.exists():
         if _stored_version(path) == env.version:
             return path
         if verbose:
             print(f"{path} was made under other {env.name} physics: regenerating it", flush=True)
-    num = DEFAULT_NUM[env.name] if split == "train" else DEFAULT_HELDOUT[env.name]
+    num = num or (DEFAULT_NUM[env.name] if split == "train" else DEFAULT_HELDOUT[env.name])
     seed = 0 if split == "train" else 1
     if verbose:
         print(f"making {num} {split} demonstrations for {env.name} (mixture {mix}) -> {path}", flush=True)

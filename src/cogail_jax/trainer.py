@@ -49,7 +49,7 @@ def build(cfg: TrainConfig, need_heldout: bool = True) -> Setup:
     cfg = cfg.validate()
     cfg = cfg.replace(updates_per_call=effective_updates_per_call(cfg))
     env = cogail_envs.make_env(cfg.task)
-    train_path = cfg.demos or data.ensure_default_demos(env, "train", cfg.mix)
+    train_path = cfg.demos or data.ensure_default_demos(env, "train", cfg.mix, num=cfg.num_demos)
     demos = data.load_demos(train_path, env)
     expert = train.expert_arrays(demos, cfg.history)
     heldout = None

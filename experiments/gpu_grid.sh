@@ -20,11 +20,13 @@ import sys
 import cogail_envs
 from cogail_jax import data
 for job in sys.argv[1].split():
-    _, task, _, mixes = job.split("|")[:4]
+    fields = job.split("|")
+    _, task, _, mixes = fields[:4]
+    sets = dict(kv.split("=", 1) for kv in fields[4].split("+")) if len(fields) > 4 and fields[4] else {}
     env = cogail_envs.make_env(task)
     for mix in (mixes.split(",") if task == "fetchq" else ["uniform"]):
-        for split in ("train", "heldout"):
-            data.ensure_default_demos(env, split, mix)
+        data.ensure_default_demos(env, "train", mix, num=int(sets.get("num_demos", 0)))
+        data.ensure_default_demos(env, "heldout", mix)
 PY
 start=$(date +%s)
 for job in $JOBS; do

@@ -201,3 +201,16 @@ def test_bc_code_noise_changes_what_the_policy_is_fit_on(tiny_cfg, fetchq, setup
     assert max(float(np.abs(a - b).max()) for a, b in zip(*actors)) > 1e-6
     with pytest.raises(ConfigError, match="bc_code_noise"):
         tiny_cfg.replace(bc_code_noise=-0.1).validate()
+
+
+def test_stagger_episodes_spreads_the_first_time_outs(tiny_cfg, fetchq, setup):
+    """With stagger_episodes the envs' step counters start spread over the time limit (else all at 0), so the
+    first episodes end at different updates instead of all envs resetting together."""
+    init, _, expert = setup
+    t_plain = np.asarray(init(tiny_cfg.seeds, expert).env_state.info["t"])
+    assert np.all(t_plain == 0)
+    init_s, _, _ = train.make_train_fns(tiny_cfg.replace(stagger_episodes=True), fetchq, train.fit_normalizer(expert))
+    t = np.asarray(init_s(tiny_cfg.seeds, expert).env_state.info["t"])
+    assert t.shape == t_plain.shape
+    assert np.all((t >= 0) & (t < fetchq.max_episode_steps))
+    assert len(np.unique(t)) > t.size // 2

@@ -29,6 +29,10 @@ class TrainConfig:
     num_envs: int = 64
     unroll_length: int = 94  # num_envs * unroll_length env steps per update (~6000, the paper's buffer)
     updates_per_call: int = 10  # updates fused into one jitted call (lax.scan)
+    # each env's first episode starts at a random point of the time limit, so that time-outs are spread over
+    # updates; off, episodes that all run to the limit (seqmanip's co-policy never succeeds early on) reset
+    # together and every update's batch is a slice of one phase of the task (README, "HR-SeqManip")
+    stagger_episodes: bool = False
     checkpoint_every: int = 30  # updates
     # PPO (co-policy)
     lr: float = 3e-4  # linear decay to 0 over the run

@@ -154,6 +154,9 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             "disc": nets["disc"].init(k_d, jnp.zeros((1, D + env.action_size))),
         }
         env_state = jax.vmap(env.reset)(jax.random.split(k_env, N))
+        if cfg.stagger_episodes:  # first episodes end at spread-out times (legged_gym's random episode_length_buf)
+            t0 = jax.random.randint(jax.random.fold_in(k_env, 1), (N,), 0, env.max_episode_steps)
+            env_state = env_state.replace(info={**env_state.info, "t": t0.astype(env_state.info["t"].dtype)})
         z, counter = new_codes(jnp.zeros((), jnp.int32), jnp.ones((N,), bool), k_z)
         return TrainState(
             params=params,

@@ -17,6 +17,7 @@ def main():
     p.add_argument("--calls", type=int, default=3)
     p.add_argument("--updates-per-call", type=int, default=4, help="updates per jitted call (dispatch amortised)")
     p.add_argument("--out", help="JSON output path")
+    p.add_argument("--only-multi", action="store_true", help="skip the one-device row (diagnosing the sharded run)")
     a = p.parse_args()
     import cogail_envs
 
@@ -28,13 +29,16 @@ def main():
     norm = train.fit_normalizer(expert)
     n = len(jax.devices())
     rows = []
-    for seeds, devices in (((300,), None), (tuple(300 + 100 * i for i in range(n)), "all")):
+    runs = (((300,), None), (tuple(300 + 100 * i for i in range(n)), "all"))
+    for seeds, devices in runs[1:] if a.only_multi else runs:
         cfg = TrainConfig(task=a.task, num_envs=a.envs, unroll_length=a.unroll, seeds=seeds,
                           updates_per_call=a.updates_per_call,
                           total_steps=a.envs * a.unroll * 100)
         r = bench.train_throughput(cfg, env, expert, norm, calls=a.calls, devices=devices)
         rows.append({"devices": 1 if devices is None else n, **r})
         print(json.dumps(rows[-1]), flush=True)
+    if a.only_multi:
+        return
     speedup = rows[1]['env_steps_per_s'] / rows[0]['env_steps_per_s']
     print(f"{a.task}: speed-up with {n} devices at the same per-device batch: {speedup:.2f}x")
     if a.out:

@@ -22,6 +22,19 @@ def test_two_devices_match_one(tiny_cfg, tmp_path):
         assert len(two.params["actor"]["params"]["log_std"].sharding.device_set) == 2
         for a, b in zip(jax.tree.leaves(jax.device_get(one.params)), jax.tree.leaves(jax.device_get(two.params))):
             np.testing.assert_allclose(a, b, rtol=2e-5, atol=2e-6)
+        # the per-device mode (each device runs the one-device program) gives the same result, placed as its input
+        pd = trainer.build(cfg.replace(multi_device="per_device"), need_heldout=False)
+        three, ex3 = trainer.place_on_devices(pd.init(cfg.seeds, pd.expert), pd.expert, "all", len(cfg.seeds))
+        sig = lambda t: [(x.sharding, x.shape, x.dtype, x.weak_type) for x in jax.tree.leaves(t)]
+        sig0 = sig(three)
+        three, m3 = pd.chunk(three, ex3)
+        assert sig(three) == sig0
+        assert m3["disc_loss"].shape == (cfg.updates_per_call, len(cfg.seeds))
+        for a, b in zip(jax.tree.leaves(jax.device_get(one.params)), jax.tree.leaves(jax.device_get(three.params))):
+            np.testing.assert_allclose(a, b, rtol=2e-5, atol=2e-6)
+        n = pd.chunk._cache_size()
+        three, _ = pd.chunk(three, ex3)
+        assert pd.chunk._cache_size() == n == 2, n  # one program per device, compiled once
         print("OK")
     """)
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600, cwd=tmp_path)
@@ -52,6 +65,16 @@ def test_sharded_mjx_chunk_has_no_cross_device_collectives(tmp_path):
         st2, _ = compiled(st, ex)
         sig = lambda t: [(x.sharding, x.shape, x.dtype) for x in jax.tree.leaves(t)]
         assert sig(st2) == sig(st), "the next call would compile again: its inputs are placed differently"
+        # the MJX tasks' default on several devices: the one-device program per device (XLA's GPU compiler
+        # crashes on the 2-device shard_map program); MJX's empty state fields come back as they went in
+        assert cfg.multi_device_mode == "per_device"
+        sig1 = lambda t: [(x.sharding, x.shape, x.dtype, x.weak_type) for x in jax.tree.leaves(t)]
+        st3, ex3 = trainer.place_on_devices(s.init(cfg.seeds, s.expert), s.expert, "all", 2)
+        before = sig1(st3)
+        st3, _ = s.chunk(st3, ex3)
+        assert sig1(st3) == before
+        st3, m3 = s.chunk(st3, ex3)
+        assert s.chunk._cache_size() == 2 and m3["disc_loss"].shape == (1, 2), s.chunk._cache_size()
         n = {op: len(re.findall(op + r"(-start)?\\(", txt))
              for op in ("all-reduce", "all-gather", "collective-permute", "all-to-all", "reduce-scatter")}
         print(n)

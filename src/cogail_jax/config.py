@@ -33,6 +33,10 @@ class TrainConfig:
     # updates; off, episodes that all run to the limit (seqmanip's co-policy never succeeds early on) reset
     # together and every update's batch is a slice of one phase of the task (README, "HR-SeqManip")
     stagger_episodes: bool = False
+    # how the seed axis runs on several devices (--devices): "shard_map" (one SPMD program), "per_device" (the
+    # one-device program on each device, from threads) or "auto" (per_device for the MJX tasks, whose 2-device
+    # shard_map program crashes XLA's GPU compiler; shard_map for fetchq)
+    multi_device: str = "auto"
     checkpoint_every: int = 30  # updates
     # PPO (co-policy)
     lr: float = 3e-4  # linear decay to 0 over the run
@@ -89,6 +93,12 @@ class TrainConfig:
 
     # --- method presets: which terms are on -----------------------------------------------------
     @property
+    def multi_device_mode(self) -> str:
+        if self.multi_device != "auto":
+            return self.multi_device
+        return "shard_map" if self.task == "fetchq" else "per_device"
+
+    @property
     def use_code(self) -> bool:  # strategy code z and psi
         return self.method in ("cogail", "ma_infogail", "diayn")
 
@@ -133,6 +143,8 @@ class TrainConfig:
                 raise ConfigError(f"{name.replace('_', '-')} must be positive, got {getattr(self, name)}")
         if not self.obs_std_floor > 0:
             raise ConfigError(f"obs_std_floor must be positive, got {self.obs_std_floor}")
+        if self.multi_device not in ("auto", "shard_map", "per_device"):
+            raise ConfigError(f"multi_device must be auto, shard_map or per_device, got {self.multi_device!r}")
         if self.num_demos < 0:
             raise ConfigError(f"num_demos must be >= 0 (0: the task's default), got {self.num_demos}")
         if self.bc_code_noise < 0:

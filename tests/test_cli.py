@@ -32,6 +32,7 @@ def test_demos_command(tmp_path):
     (["eval", "--run", "RUN"], "not a run directory"),
     (["train", "--run", "RUN", "--config", "MISSING.json"], "config file"),
     (["train", "--run", "RUN", "--set", "nope=1"], "unknown config field"),
+    (["train", "--run", "RUN", "--set", "multi_device=mesh"], "multi_device must be auto, shard_map or per_device"),
 ])
 def test_user_errors_are_one_clear_line(args, needle, tmp_path):
     args = [a.replace("RUN", str(tmp_path / "run")).replace("MISSING", str(tmp_path / "missing")) for a in args]

@@ -462,10 +462,13 @@ class SeedChunk:
         devs = list(mesh.devices.flat)
         n = len(devs)
 
+        def shard(x, i):  # what device i holds of x
+            return next(sh.data for sh in x.addressable_shards if sh.device == devs[i])
+
         def piece(x, i):  # device i's block of the seed axis (replicated empty leaves: an empty block)
             if x.size == 0:
                 return jax.device_put(np.zeros((x.shape[0] // n,) + x.shape[1:], x.dtype), devs[i])
-            return next(sh.data for sh in x.addressable_shards if sh.device == devs[i])
+            return shard(x, i)
 
         def whole(parts, axis, spec):
             shape = list(parts[0].shape)
@@ -474,8 +477,7 @@ class SeedChunk:
                 return jax.device_put(np.zeros(shape, parts[0].dtype), NamedSharding(mesh, P()))
             return jax.make_array_from_single_device_arrays(tuple(shape), NamedSharding(mesh, spec), list(parts))
 
-        args = [(jax.tree.map(lambda x: piece(x, i), state),
-                 jax.tree.map(lambda x: next(sh.data for sh in x.addressable_shards if sh.device == devs[i]), expert))
+        args = [(jax.tree.map(lambda x: piece(x, i), state), jax.tree.map(lambda x: shard(x, i), expert))
                 for i in range(n)]
         del state
         if self._pool is None:

@@ -214,3 +214,83 @@ def test_stagger_episodes_spreads_the_first_time_outs(tiny_cfg, fetchq, setup):
     assert t.shape == t_plain.shape
     assert np.all((t >= 0) & (t < fetchq.max_episode_steps))
     assert len(np.unique(t)) > t.size // 2
+
+
+def test_ppo_bc_term_pulls_the_co_policy_to_the_demonstrations(tiny_cfg, fetchq, setup):
+    """bc_coef (PPO+BC): each PPO minibatch adds the co-policy's squared error on expert actions, so with a
+    large weight the error on expert data ends lower than without it from the same start; the term is
+    reported as ``ppo_bc``; a negative weight is refused."""
+    from cogail_jax import losses
+    from cogail_jax.config import ConfigError
+
+    _, _, expert = setup
+    n = 256
+    err = {}
+    for coef in (0.0, 20.0):
+        # the separate L_a / L_r / L_z step off, so that only PPO moves the actor
+        cfg = tiny_cfg.replace(bc_coef=coef, seeds=(3,), lambda_r=0.0, lambda_a=0.0, lambda_z=0.0)
+        norm = train.fit_normalizer(expert)
+        init_c, chunk_c, nets = train.make_train_fns(cfg, fetchq, norm)
+        state = init_c(cfg.seeds, expert)
+        for _ in range(3):
+            state, m = chunk_c(state, expert)
+        m = jax.device_get(m)
+        assert ("ppo_bc" in m) == (coef > 0)
+        if coef:
+            assert np.all(np.isfinite(m["ppo_bc"])) and np.all(m["ppo_bc"] > 0)
+        # the co-policy's error on expert data with psi's code, measured the same way for both runs
+        p = jax.tree.map(lambda x: x[0], state.params)
+        nz = lambda x: (x - norm["mean"]) / norm["std"]  # noqa: E731
+        b = {"obs": nz(expert["obs"][:n]), "ah": expert["ah"][:n], "ar": expert["ar"][:n],
+             "hist": nz(expert["hist"][:n]).reshape(n, -1), "prev_ah": expert["prev_ah"][:n]}
+        la, lr, _ = losses.behaviour_loss(nets["psi"].apply, nets["actor"].apply, p, b, fetchq.human_action_size)
+        err[coef] = float(la + lr)
+    assert err[20.0] < 0.8 * err[0.0], err
+    with pytest.raises(ConfigError, match="bc_coef"):
+        tiny_cfg.replace(bc_coef=-1.0).validate()
+
+
+def test_disc_instance_noise_gives_expert_actions_the_policy_noise(tiny_cfg, fetchq, setup):
+    """disc_instance_noise: the discriminator's expert actions get the policy's action noise and clip (so the
+    noise level alone cannot tell them apart); it changes the discriminator's training, off leaves it as it was."""
+    from cogail_jax import losses
+
+    a = np.zeros((20000, 3), np.float32)
+    a[:, 2] = 1.0  # a gripper-like dim at its bound
+    log_std = np.log(np.array([0.2, 0.05, 0.2], np.float32))
+    out = np.asarray(losses.noisy_expert_actions(a, log_std, jax.random.PRNGKey(0)))
+    assert np.allclose(out[:, :2].std(0), [0.2, 0.05], rtol=0.05)
+    assert np.all(out <= 1.0) and np.all(out >= -1.0)
+    assert 0.4 < np.mean(out[:, 2] == 1.0) < 0.6  # clipped like the policy's executed actions
+    _, _, expert = setup
+    disc = []
+    for on in (False, True):
+        cfg = tiny_cfg.replace(disc_instance_noise=on, seeds=(3,))
+        init_c, chunk_c, _ = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
+        state, _ = chunk_c(init_c(cfg.seeds, expert), expert)
+        disc.append(jax.tree.leaves(jax.device_get(state.params["disc"])))
+    assert max(float(np.abs(x - y).max()) for x, y in zip(*disc)) > 1e-6
+
+
+def test_policy_cooldown_keeps_ppo_off_the_actor(tiny_cfg, fetchq, setup):
+    """policy_cooldown: during a run's last N updates PPO trains the critic only. With N covering the whole
+    run and the separate L_a / L_r / L_z step off, the actor ends where it started; without it, it moves."""
+    from cogail_jax.config import ConfigError
+
+    _, _, expert = setup
+    moved = {}
+    for cool in (0, 6):
+        cfg = tiny_cfg.replace(policy_cooldown=cool, seeds=(3,), lambda_r=0.0, lambda_a=0.0, lambda_z=0.0)
+        assert cfg.num_updates == 6
+        init_c, chunk_c, _ = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
+        state = init_c(cfg.seeds, expert)
+        a0, c0 = jax.device_get((state.params["actor"], state.params["critic"]))
+        for _ in range(3):
+            state, _ = chunk_c(state, expert)
+        a1, c1 = jax.device_get((state.params["actor"], state.params["critic"]))
+        diff = lambda x, y: max(float(np.abs(u - v).max()) for u, v in zip(jax.tree.leaves(x), jax.tree.leaves(y)))  # noqa: E731
+        moved[cool] = (diff(a0, a1), diff(c0, c1))
+    assert moved[6][0] == 0.0 and moved[6][1] > 1e-6
+    assert moved[0][0] > 1e-6
+    with pytest.raises(ConfigError, match="policy_cooldown"):
+        tiny_cfg.replace(policy_cooldown=-1).validate()

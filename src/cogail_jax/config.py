@@ -51,11 +51,23 @@ class TrainConfig:
     init_log_std: float = -1.6  # std 0.2: the demonstrations are smooth; a noisier start is told apart at once
     reward_norm: bool = True
     policy_warmup: int = 0  # updates during which PPO trains the critic only (the actor keeps its BC init)
+    policy_cooldown: int = 0  # the run's last N updates: PPO trains the critic only, the co-policy moves by the
+    #   L_a / L_r steps alone (our addition, 0 = off; README, "HR-SeqManip")
+    # PPO+BC (our addition, 0 = off): every PPO minibatch adds bc_coef x the squared error of the co-policy's
+    # mean on an expert minibatch, both agents acting on psi's code of the expert history. Unlike lambda_a /
+    # lambda_r, whose separate Adam step is scale-free per tower, this weight sets the balance against the
+    # discriminator's policy gradient inside one optimizer step (README, "HR-SeqManip")
+    bc_coef: float = 0.0
     obs_std_floor: float = 1e-2  # floor of the observation normaliser's std (0.1 for the MJX tasks' configs)
     # discriminator
     disc_loss: str = "auto"  # "bce" | "lsgan" | "auto" (the task's: bce for fetchq, lsgan for manipulation)
     disc_lr: float = 3e-4
     gp_coef: float = 10.0
+    # instance noise (our addition, off = the paper): the expert actions the discriminator sees get the policy's
+    # current Gaussian action noise and the same clip to [-1, 1] as the policy's executed actions, so that the
+    # discriminator cannot tell the two apart by the noise alone (scripted demos are near noise-free on some
+    # dims, e.g. the gripper's exactly +-1) and its reward has to be about what the agents do (README)
+    disc_instance_noise: bool = False
     # strategy code, psi, aux losses
     code_dim: int = 2
     code_grid: int = 5
@@ -147,6 +159,10 @@ class TrainConfig:
             raise ConfigError(f"multi_device must be auto, shard_map or per_device, got {self.multi_device!r}")
         if self.num_demos < 0:
             raise ConfigError(f"num_demos must be >= 0 (0: the task's default), got {self.num_demos}")
+        if self.policy_warmup < 0 or self.policy_cooldown < 0:
+            raise ConfigError("policy_warmup and policy_cooldown must be >= 0")
+        if self.bc_coef < 0:
+            raise ConfigError(f"bc_coef must be >= 0, got {self.bc_coef}")
         if self.bc_code_noise < 0:
             raise ConfigError(f"bc_code_noise must be >= 0, got {self.bc_code_noise}")
         if self.history < 0 or self.bc_steps < 0:

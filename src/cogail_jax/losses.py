@@ -54,6 +54,13 @@ def discriminator_loss(disc_apply, params, expert, policy, kind, gp_coef, rng):
     return loss + gp_coef * gp, {"disc_loss": loss, "disc_gp": gp, "disc_acc_expert": acc_e, "disc_acc_policy": acc_p}
 
 
+def noisy_expert_actions(actions, log_std, key):
+    """Instance noise for the discriminator: the expert's actions with the policy's Gaussian action noise
+    (``log_std``, no gradient) and the same clip to [-1, 1] as the actions the policy executes."""
+    std = jnp.exp(jax.lax.stop_gradient(log_std))
+    return jnp.clip(actions + std * jax.random.normal(key, actions.shape), -1.0, 1.0)
+
+
 def discriminator_reward(d, kind):
     """Reward from the discriminator output: the logit for BCE (log D - log(1 - D)), D itself for LSGAN."""
     return d

@@ -291,7 +291,10 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
                 upd, aux_opt = aux_tx.update(g, aux_opt, sub)
                 sub = optax.apply_updates(sub, upd)
             # discriminator
-            x_e = jnp.concatenate([exp_b["obs"], exp_b["ah"], exp_b["ar"]], -1)
+            a_e = jnp.concatenate([exp_b["ah"], exp_b["ar"]], -1)
+            if cfg.disc_instance_noise:  # the policy's action noise and clip on the expert's actions too
+                a_e = losses.noisy_expert_actions(a_e, params["actor"]["params"]["log_std"], jax.random.fold_in(k_gp, 1))
+            x_e = jnp.concatenate([exp_b["obs"], a_e], -1)
             x_p = jnp.concatenate([normalize(norm, gen["obs"]), gen["act"]], -1)
             (_, dm), g = jax.value_and_grad(
                 lambda p: losses.discriminator_loss(disc, p, x_e, x_p, disc_kind, cfg.gp_coef, k_gp), has_aux=True
@@ -328,7 +331,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         rms = {"mean": mean, "var": m2 / tot, "count": tot}
         return state.replace(ret_rms=rms, ret_acc=ret_acc), r / jnp.sqrt(rms["var"] + 1e-8), r
 
-    def ppo_update(state: TrainState, traj, adv, ret, key):
+    def ppo_update(state: TrainState, traj, adv, ret, key, expert):
         n = T * N
         obs_n = normalize(state.norm, traj["obs"]).reshape(n, D)
         z, action = traj["z"].reshape(n, -1), traj["action"].reshape(n, -1)
@@ -339,20 +342,31 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         mb = n // cfg.num_minibatches
 
         def epoch(carry, key):
-            def minibatch(carry, idx):
+            def minibatch(carry, x):
+                idx, k_bc = x
                 sub, opt = carry
                 batch = jax.tree.map(lambda x: x[idx], flat)
-                (_, m), g = jax.value_and_grad(
-                    lambda p: losses.ppo_loss(actor, critic, p, batch, cfg.clip_eps, cfg.value_coef, cfg.entropy_coef),
-                    has_aux=True)(sub)
-                # critic warm-up: the actor is not moved by PPO for the first `policy_warmup` updates
-                g = {**g, "actor": mask_frozen_human(
-                    jax.tree.map(lambda x: x * (state.update >= cfg.policy_warmup), g["actor"]))}
+                exp_b = sample_expert(state.norm, expert, k_bc, cfg.inner_batch) if cfg.bc_coef > 0 else None
+
+                def loss(p):
+                    total, m = losses.ppo_loss(actor, critic, p, batch, cfg.clip_eps, cfg.value_coef, cfg.entropy_coef)
+                    if cfg.bc_coef > 0:  # PPO+BC: both agents' actions on expert data, psi's code (held fixed here)
+                        la, lr, _ = losses.behaviour_loss(psi if cfg.use_code else zero_code, actor,
+                                                          {**state.params, **p}, exp_b, Ah)
+                        total, m = total + cfg.bc_coef * (la + lr), {**m, "ppo_bc": la + lr}
+                    return total, m
+
+                (_, m), g = jax.value_and_grad(loss, has_aux=True)(sub)
+                # critic warm-up / cool-down: the actor is not moved by PPO for the first `policy_warmup` and the
+                # last `policy_cooldown` updates
+                moves = (state.update >= cfg.policy_warmup) & (state.update < cfg.num_updates - cfg.policy_cooldown)
+                g = {**g, "actor": mask_frozen_human(jax.tree.map(lambda x: x * moves, g["actor"]))}
                 upd, opt = ppo_tx.update(g, opt, sub)
                 return (optax.apply_updates(sub, upd), opt), m
 
             perm = jax.random.permutation(key, n)[: mb * cfg.num_minibatches].reshape(cfg.num_minibatches, mb)
-            return jax.lax.scan(minibatch, carry, perm)
+            k_bc = jax.random.split(jax.random.fold_in(key, 1), cfg.num_minibatches)  # leaves perm's stream as it was
+            return jax.lax.scan(minibatch, carry, (perm, k_bc))
 
         sub = {"actor": state.params["actor"], "critic": state.params["critic"]}
         (sub, opt), m = jax.lax.scan(epoch, (sub, state.ppo_opt), jax.random.split(key, cfg.ppo_epochs))
@@ -387,7 +401,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         state, inner_m = inner_updates(state, flat, expert, k_inner)
         state, r_norm, r_raw = rewards(state, traj)
         adv, ret = losses.gae(r_norm, traj["value"], traj["done"], last_value, cfg.gamma, cfg.gae_lambda)
-        state, ppo_m = ppo_update(state, traj, adv, ret, k_ppo)
+        state, ppo_m = ppo_update(state, traj, adv, ret, k_ppo, expert)
         episodes = traj["done"].sum()
         finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(state.params)]))
         metrics = {**inner_m, **ppo_m, "reward": r_raw.mean(), "episodes": episodes,

@@ -216,22 +216,38 @@ def test_stagger_episodes_spreads_the_first_time_outs(tiny_cfg, fetchq, setup):
     assert len(np.unique(t)) > t.size // 2
 
 
-def test_ppo_bc_term_pulls_the_co_policy_to_the_demonstrations(tiny_cfg, fetchq, setup):
+@pytest.fixture(scope="module")
+def ppo_only(tiny_cfg, fetchq, setup):
+    """One seed, the separate L_a / L_r / L_z step off (only PPO moves the actor): the baseline the bc_coef and
+    policy_cooldown tests compare against, compiled once."""
+    _, _, expert = setup
+    cfg = tiny_cfg.replace(seeds=(3,), lambda_r=0.0, lambda_a=0.0, lambda_z=0.0)
+    init_c, chunk_c, nets = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
+    return cfg, init_c, chunk_c, nets
+
+
+def _max_diff(x, y):
+    return max(float(np.abs(u - v).max()) for u, v in zip(jax.tree.leaves(x), jax.tree.leaves(y)))
+
+
+def test_ppo_bc_term_pulls_the_co_policy_to_the_demonstrations(ppo_only, fetchq, setup):
     """bc_coef (PPO+BC): each PPO minibatch adds the co-policy's squared error on expert actions, so with a
     large weight the error on expert data ends lower than without it from the same start; the term is
     reported as ``ppo_bc``; a negative weight is refused."""
     from cogail_jax import losses
     from cogail_jax.config import ConfigError
 
+    base, init0, chunk0, nets = ppo_only
     _, _, expert = setup
+    norm = train.fit_normalizer(expert)
     n = 256
     err = {}
     for coef in (0.0, 20.0):
-        # the separate L_a / L_r / L_z step off, so that only PPO moves the actor
-        cfg = tiny_cfg.replace(bc_coef=coef, seeds=(3,), lambda_r=0.0, lambda_a=0.0, lambda_z=0.0)
-        norm = train.fit_normalizer(expert)
-        init_c, chunk_c, nets = train.make_train_fns(cfg, fetchq, norm)
-        state = init_c(cfg.seeds, expert)
+        if coef:
+            init_c, chunk_c, _ = train.make_train_fns(base.replace(bc_coef=coef), fetchq, norm)
+        else:
+            init_c, chunk_c = init0, chunk0
+        state = init_c(base.seeds, expert)
         for _ in range(3):
             state, m = chunk_c(state, expert)
         m = jax.device_get(m)
@@ -247,7 +263,7 @@ def test_ppo_bc_term_pulls_the_co_policy_to_the_demonstrations(tiny_cfg, fetchq,
         err[coef] = float(la + lr)
     assert err[20.0] < 0.8 * err[0.0], err
     with pytest.raises(ConfigError, match="bc_coef"):
-        tiny_cfg.replace(bc_coef=-1.0).validate()
+        base.replace(bc_coef=-1.0).validate()
 
 
 def test_disc_instance_noise_gives_expert_actions_the_policy_noise(tiny_cfg, fetchq, setup):
@@ -262,35 +278,36 @@ def test_disc_instance_noise_gives_expert_actions_the_policy_noise(tiny_cfg, fet
     assert np.allclose(out[:, :2].std(0), [0.2, 0.05], rtol=0.05)
     assert np.all(out <= 1.0) and np.all(out >= -1.0)
     assert 0.4 < np.mean(out[:, 2] == 1.0) < 0.6  # clipped like the policy's executed actions
-    _, _, expert = setup
-    disc = []
-    for on in (False, True):
-        cfg = tiny_cfg.replace(disc_instance_noise=on, seeds=(3,))
-        init_c, chunk_c, _ = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
-        state, _ = chunk_c(init_c(cfg.seeds, expert), expert)
-        disc.append(jax.tree.leaves(jax.device_get(state.params["disc"])))
-    assert max(float(np.abs(x - y).max()) for x, y in zip(*disc)) > 1e-6
+    init, chunk, expert = setup  # off: the module's shared chunk
+    off, _ = chunk(init(tiny_cfg.seeds, expert), expert)  # the chunk donates its input: a fresh (equal) start each
+    _, chunk_on, _ = train.make_train_fns(tiny_cfg.replace(disc_instance_noise=True), fetchq,
+                                          train.fit_normalizer(expert))
+    on, _ = chunk_on(init(tiny_cfg.seeds, expert), expert)
+    assert _max_diff(jax.device_get(off.params["disc"]), jax.device_get(on.params["disc"])) > 1e-6
 
 
-def test_policy_cooldown_keeps_ppo_off_the_actor(tiny_cfg, fetchq, setup):
+def test_policy_cooldown_keeps_ppo_off_the_actor(ppo_only, fetchq, setup):
     """policy_cooldown: during a run's last N updates PPO trains the critic only. With N covering the whole
     run and the separate L_a / L_r / L_z step off, the actor ends where it started; without it, it moves."""
     from cogail_jax.config import ConfigError
 
+    base, init0, chunk0, _ = ppo_only
     _, _, expert = setup
     moved = {}
     for cool in (0, 6):
-        cfg = tiny_cfg.replace(policy_cooldown=cool, seeds=(3,), lambda_r=0.0, lambda_a=0.0, lambda_z=0.0)
-        assert cfg.num_updates == 6
-        init_c, chunk_c, _ = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
-        state = init_c(cfg.seeds, expert)
+        assert base.num_updates == 6
+        if cool:
+            init_c, chunk_c, _ = train.make_train_fns(base.replace(policy_cooldown=cool), fetchq,
+                                                      train.fit_normalizer(expert))
+        else:
+            init_c, chunk_c = init0, chunk0
+        state = init_c(base.seeds, expert)
         a0, c0 = jax.device_get((state.params["actor"], state.params["critic"]))
         for _ in range(3):
             state, _ = chunk_c(state, expert)
         a1, c1 = jax.device_get((state.params["actor"], state.params["critic"]))
-        diff = lambda x, y: max(float(np.abs(u - v).max()) for u, v in zip(jax.tree.leaves(x), jax.tree.leaves(y)))  # noqa: E731
-        moved[cool] = (diff(a0, a1), diff(c0, c1))
+        moved[cool] = (_max_diff(a0, a1), _max_diff(c0, c1))
     assert moved[6][0] == 0.0 and moved[6][1] > 1e-6
     assert moved[0][0] > 1e-6
     with pytest.raises(ConfigError, match="policy_cooldown"):
-        tiny_cfg.replace(policy_cooldown=-1).validate()
+        base.replace(policy_cooldown=-1).validate()

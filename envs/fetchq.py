@@ -156,6 +156,16 @@ class FetchQuest(CollabEnv):
         d = jnp.linalg.norm(pos[:, None, :] - BUTTONS[None], axis=-1)  # (agent, button)
         return jnp.any(d < BUTTON_R, axis=0).astype(jnp.float32)
 
+    # snapshots (base.CollabEnv.snapshot): the pipeline state is already a small dict of arrays
+    def _sim_snapshot(self, ps: dict) -> dict:
+        return ps
+
+    def _sim_restore(self, sim: dict) -> dict:
+        return sim
+
+    def _observe(self, ps: dict, info: dict) -> jax.Array:
+        return self._obs(ps, info["t"])
+
     def _obs(self, ps: dict, t: jax.Array) -> jax.Array:
         return jnp.concatenate(
             [

@@ -209,6 +209,16 @@ class Handover(CollabEnv):
     def _obj_mat(self, d) -> jax.Array:
         return d.xmat[self.obj_body].reshape(3, 3)
 
+    # ------------------------------------------------------------------ snapshots (base.CollabEnv.snapshot)
+    def _sim_snapshot(self, d) -> dict:
+        return mc.snapshot_data(d)
+
+    def _sim_restore(self, sim: dict):
+        return mc.restore_data(self.mx, sim, self._template)
+
+    def _observe(self, d, info: dict) -> jax.Array:
+        return self._obs(d, info)
+
     def _obs(self, d, info: dict) -> jax.Array:
         h, r = self.human, self.robot
         p = self._obj_pos(d)

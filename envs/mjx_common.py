@@ -370,6 +370,16 @@ def make_data(m: mujoco.MjModel, mx: mjx.Model, qpos: jax.Array, ctrl: jax.Array
     return mjx.forward(mx, d)
 
 
+def snapshot_data(d: mjx.Data) -> dict:
+    """What a snapshot keeps of an ``mjx.Data``: positions, velocities and controls."""
+    return {"qpos": d.qpos, "qvel": d.qvel, "ctrl": d.ctrl}
+
+
+def restore_data(mx: mjx.Model, sim: dict, template: mjx.Data) -> mjx.Data:
+    """An ``mjx.Data`` at a snapshot's positions, velocities and controls, after ``mjx.forward``."""
+    return mjx.forward(mx, template.replace(qpos=sim["qpos"], qvel=sim["qvel"], ctrl=sim["ctrl"]))
+
+
 def rot6d(mat: jax.Array) -> jax.Array:
     """Continuous 6D rotation: first two columns of a (..., 3, 3) rotation matrix, flattened."""
     return jnp.concatenate([mat[..., :, 0], mat[..., :, 1]], axis=-1)

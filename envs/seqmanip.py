@@ -370,6 +370,16 @@ class SeqManip(CollabEnv):
         a, b = g.sensors[geom]
         return (d.sensordata[a] > 0) | (d.sensordata[b] > 0)
 
+    # ------------------------------------------------------------------ snapshots (base.CollabEnv.snapshot)
+    def _sim_snapshot(self, d) -> dict:
+        return mc.snapshot_data(d)
+
+    def _sim_restore(self, sim: dict):
+        return mc.restore_data(self.mx, sim, self._template)
+
+    def _observe(self, d, info: dict) -> jax.Array:
+        return self._obs(d, info)
+
     # ------------------------------------------------------------------ observation
     def _obs(self, d, info: dict) -> jax.Array:
         h, r = self.human, self.robot

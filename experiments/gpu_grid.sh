@@ -25,7 +25,8 @@ for job in sys.argv[1].split():
     sets = dict(kv.split("=", 1) for kv in fields[4].split("+")) if len(fields) > 4 and fields[4] else {}
     env = cogail_envs.make_env(task)
     for mix in (mixes.split(",") if task == "fetchq" else ["uniform"]):
-        data.ensure_default_demos(env, "train", mix, num=int(sets.get("num_demos", 0)))
+        data.ensure_default_demos(env, "train", mix, num=int(sets.get("num_demos", 0)),
+                                  states=float(sets.get("demo_reset", 0)) > 0)
         data.ensure_default_demos(env, "heldout", mix)
 PY
 start=$(date +%s)

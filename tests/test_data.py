@@ -100,3 +100,41 @@ def test_ten_thousand_demos_one_call(fetchq):
 
     eps = demos.generate(fetchq, 10000, seed=2)
     assert eps.obs.shape[0] == 10000 and eps.success.mean() > 0.99
+
+
+def test_generated_demos_carry_simulator_snapshots(demo_files, fetchq, tmp_path, monkeypatch):
+    """`cogail demos` files store env.snapshot every STATE_STRIDE steps; restoring one and stepping it with the
+    demonstration's actions goes on exactly as the demonstration did (fetchq is deterministic). A file
+    without snapshots loads with states None, and a cached default file without them is regenerated when
+    snapshots are asked for."""
+    import jax
+
+    from cogail_jax import demos as demos_mod
+
+    d = data.load_demos(demo_files[0], fetchq)
+    S = data.STATE_STRIDE
+    assert d.state_stride == S and d.states.shape == (12, -(-int(d.length.max()) // S), fetchq.snapshot_size)
+    di, t = d.state_steps()
+    assert len(di) == sum(-(-int(n) // S) for n in d.length) and np.all(t < d.length[di])
+    restore, step = jax.jit(fetchq.restore), jax.jit(fetchq.step)
+    i = 3
+    for k in (1, int(d.length[i]) // S - 1):
+        state = restore(d.states[i, k])
+        assert int(state.info["t"]) == k * S
+        np.testing.assert_array_equal(np.asarray(state.obs), d.obs[i, k * S])
+        for u in range(k * S, int(d.length[i])):
+            if u < k * S + 12:
+                np.testing.assert_allclose(np.asarray(state.obs), d.obs[i, u], atol=1e-6)
+            state = step(state, np.concatenate([d.actions_human[i, u], d.actions_robot[i, u]]))
+        assert float(state.metrics["success"]) == 1.0  # the demonstration's ending, reached from the snapshot
+    # without snapshots
+    plain = _copy(demo_files[0], tmp_path / "plain.hdf5", lambda g: [g[f"data/{k}"].__delitem__("states")
+                                                                      for k in g["data"]])
+    assert data.load_demos(plain, fetchq).states is None and not data.has_states(plain)
+    monkeypatch.setenv("COGAIL_DATA", str(tmp_path))
+    monkeypatch.setitem(data.DEFAULT_NUM, "fetchq", 3)
+    eps = demos_mod.generate(fetchq, 3)
+    p = data.save_demos(data.default_demo_path("fetchq", "train"), fetchq, eps._replace(states=None))
+    assert data.ensure_default_demos(fetchq, "train", verbose=False) == p and not data.has_states(p)
+    data.ensure_default_demos(fetchq, "train", verbose=False, states=True)
+    assert data.has_states(p) and data.load_demos(p, fetchq).states is not None

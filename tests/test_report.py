@@ -109,3 +109,29 @@ def test_help(cmd, capsys):
     with pytest.raises(SystemExit) as e:
         cli.main([cmd, "--help"])
     assert e.value.code == 0 and "usage: cogail" in capsys.readouterr().out
+
+
+def test_summary_breaks_replay_and_interpolation_down_by_events():
+    """results.json: replay success per held-out strategy and how far rollouts got (each event's share), at
+    the best checkpoints; categorical events (1 human / 2 robot) are split by value, continuous ones left out."""
+    from cogail_jax import evaluate
+
+    hs = np.array([1, 1, 2, 2])
+    ck = {
+        10: {"replay_success": np.array([[1, 0, 0, 0]], float), "interp_success": np.array([[0, 0, 0]], float),
+             "interp_strategy": np.zeros((1, 3), int),
+             "interp_metrics": {"opened_by": np.array([[0, 1, 2]], float), "spot": np.array([[0.3, 0.1, 0.2]])},
+             "replay_metrics": {"success": np.array([[1, 0, 0, 0]], float), "opened_by": np.array([[1, 1, 0, 2]], float)}},
+        20: {"replay_success": np.array([[1, 0, 1, 1]], float), "interp_success": np.array([[1, 0, 0]], float),
+             "interp_strategy": np.array([[2, 0, 0]]),
+             "interp_metrics": {"opened_by": np.array([[2, 2, 0]], float), "spot": np.array([[0.3, 0.1, 0.2]])},
+             "replay_metrics": {"success": np.array([[1, 0, 1, 1]], float), "opened_by": np.array([[1, 0, 2, 2]], float)}},
+    }
+    res = evaluate.summarize("t", "cogail", (7,), ck, ("a", "b"), None, heldout_strategy=hs)
+    assert res["best_checkpoint"]["7"] == {"replay": 20, "interpolation": 20}
+    assert res["replay_by_strategy"] == {"a": 0.5, "b": 1.0}
+    assert res["replay_events_by_strategy"]["a"] == {"opened_by=1": 0.5, "opened_by=2": 0.0, "success": 0.5}
+    assert res["replay_events_by_strategy"]["b"] == {"opened_by=1": 0.0, "opened_by=2": 1.0, "success": 1.0}
+    assert res["interpolation_events"] == pytest.approx({"opened_by=1": 0.0, "opened_by=2": 2 / 3})
+    md = evaluate.results_markdown(res)
+    assert "a 50.0 %" in md and "Events in replays of b demonstrations" in md

@@ -311,3 +311,48 @@ def test_policy_cooldown_keeps_ppo_off_the_actor(ppo_only, fetchq, setup):
     assert moved[0][0] > 1e-6
     with pytest.raises(ConfigError, match="policy_cooldown"):
         base.replace(policy_cooldown=-1).validate()
+
+
+def test_demo_reset_starts_episodes_inside_demonstrations(tiny_cfg, fetchq, setup):
+    """demo_reset=1: every episode that restarts begins at a stored demonstration state, with that
+    demonstration's learned code as z and the demonstration's history in psi's input; the share of
+    episodes from the task's own start that succeed is reported; asking for it without snapshots, or
+    with a probability outside [0, 1], is a clear error."""
+    import cogail_envs
+
+    from cogail_jax.config import ConfigError
+
+    _, _, expert0 = setup
+    demos = data.load_demos(tiny_cfg.demos, fetchq)
+    expert = train.expert_arrays(demos, tiny_cfg.history, states=True)
+    assert expert["snap"].shape == (len(expert["snap_idx"]), fetchq.snapshot_size)
+    np.testing.assert_array_equal(expert["obs"][expert["snap_idx"]],  # each snapshot is of its step's state
+                                  np.asarray(jax.vmap(fetchq.restore)(expert["snap"]).obs))
+    short = cogail_envs.make_env("fetchq", max_episode_steps=40)  # first episodes end inside the 32 steps
+    cfg = tiny_cfg.replace(seeds=(3,), num_envs=16, demo_reset=1.0, stagger_episodes=True)
+    init, chunk, _ = train.make_train_fns(cfg, short, train.fit_normalizer(expert))
+    state = init(cfg.seeds, expert)
+    state, m = chunk(state, expert)
+    m = jax.device_get(m)
+    assert "fresh_episode_success" in m and np.all((m["fresh_episode_success"] >= 0) & (m["fresh_episode_success"] <= 1))
+    from_demo = np.asarray(state.env_state.info["from_demo"][0]) > 0
+    assert from_demo.sum() >= 4
+    codes = np.tanh(np.asarray(state.params["codes"][0]))
+    z = np.asarray(state.z[0])[from_demo]
+    assert np.abs(z[:, None] - codes[None]).sum(-1).min(1).max() < 0.05  # z is a demonstration's code
+    hist = np.asarray(state.hist[0])[from_demo]
+    np.testing.assert_allclose(hist[:, -1], np.asarray(state.env_state.obs[0])[from_demo], atol=1e-6)
+    with pytest.raises(ConfigError, match="demo_reset"):
+        tiny_cfg.replace(demo_reset=1.5).validate()
+    import h5py
+
+    plain = tiny_cfg.demos.replace(".hdf5", "_plain.hdf5")
+    with h5py.File(tiny_cfg.demos) as f, h5py.File(plain, "w") as g:
+        for k, v in f.attrs.items():
+            g.attrs[k] = v
+        f.copy("data", g)
+        for k in g["data"]:
+            del g[f"data/{k}/states"]
+    with pytest.raises(ConfigError, match="no.*cogail demos"):
+        trainer.build(tiny_cfg.replace(demos=plain, demo_reset=0.5), need_heldout=False)
+    assert "snap" not in expert0  # off: the expert arrays and the rollout are as before

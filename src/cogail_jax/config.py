@@ -38,6 +38,13 @@ class TrainConfig:
     # shard_map program crashes XLA's GPU compiler; shard_map for fetchq)
     multi_device: str = "auto"
     checkpoint_every: int = 30  # updates
+    # reference-state initialisation (our addition, 0 = the paper): the probability that a training episode
+    # starts from a stored state of a training demonstration (a simulator snapshot every 10 steps, written by
+    # `cogail demos`), with that demonstration's learned code as its z and its history in psi's input, instead
+    # of from the task's initial distribution. Later phases of a long task are practised without first getting
+    # through the earlier ones (DeepMimic's reference state initialisation; README, "HR-SeqManip").
+    # Evaluation always starts from the task's initial distribution.
+    demo_reset: float = 0.0
     # PPO (co-policy)
     lr: float = 3e-4  # linear decay to 0 over the run
     gamma: float = 0.99
@@ -163,6 +170,8 @@ class TrainConfig:
             raise ConfigError("policy_warmup and policy_cooldown must be >= 0")
         if self.bc_coef < 0:
             raise ConfigError(f"bc_coef must be >= 0, got {self.bc_coef}")
+        if not 0.0 <= self.demo_reset <= 1.0:
+            raise ConfigError(f"demo_reset is a probability in [0, 1], got {self.demo_reset}")
         if self.bc_code_noise < 0:
             raise ConfigError(f"bc_code_noise must be >= 0, got {self.bc_code_noise}")
         if self.history < 0 or self.bc_steps < 0:

@@ -28,6 +28,7 @@ class Episodes(NamedTuple):
     success: np.ndarray  # (N,)
     init: np.ndarray  # (N, init_size) reset parameters (reset_from reproduces the start)
     final_metrics: dict  # name -> (N,) metrics at the episode's last step
+    states: np.ndarray | None = None  # (N, T, snapshot_size): env.snapshot of the state before each step
 
 
 def resolve_mix(env, mix) -> jnp.ndarray:
@@ -65,7 +66,7 @@ def team_rollout_fn(env, num: int, robot_strategy: int | None = None):
             state, ts, finished, last_metrics = carry
             ts, action = env.team_act(ts, state, key)
             nxt = env.step(state, action)
-            out = (state.obs, action, finished)
+            out = (state.obs, action, finished, env.snapshot(state))
             ended = nxt.done > 0
             # freeze the state once the episode ended (no auto-reset in demonstrations)
             new_state = jax.tree.map(lambda a, b: jnp.where(finished, a, b), state, nxt)
@@ -73,12 +74,12 @@ def team_rollout_fn(env, num: int, robot_strategy: int | None = None):
             return (new_state, ts, finished | ended, new_metrics), out
 
         carry = (state, ts, jnp.array(False), state.metrics)
-        (state, ts, _, metrics), (obs, act, fin) = jax.lax.scan(body, carry, jax.random.split(k_run, T))
+        (state, ts, _, metrics), (obs, act, fin, snaps) = jax.lax.scan(body, carry, jax.random.split(k_run, T))
         length = jnp.sum(~fin).astype(jnp.int32)
         a_h, a_r = env.split_action(act)
         return dict(obs=obs, actions_human=a_h, actions_robot=a_r, length=length, strategy=strategy,
                     executed=env.classify_strategy(metrics), success=metrics["success"], init=init,
-                    final_metrics=metrics)
+                    final_metrics=metrics, states=snaps)
 
     @jax.jit
     def run(rng, mix):
@@ -92,3 +93,10 @@ def generate(env, num: int, mix=None, seed: int = 0, robot_strategy: int | None 
     w = resolve_mix(env, mix)
     out = jax.device_get(team_rollout_fn(env, num, robot_strategy)(jax.random.PRNGKey(seed), w))
     return Episodes(**{k: (np.asarray(v) if k != "final_metrics" else v) for k, v in out.items()})
+
+
+def select(episodes: Episodes, keep: np.ndarray) -> Episodes:
+    """The episodes where ``keep`` (a boolean (N,) mask) holds."""
+    return Episodes(*[v[keep] if isinstance(v, np.ndarray) else
+                      ({k: np.asarray(x)[keep] for k, x in v.items()} if isinstance(v, dict) else v)
+                      for v in episodes])

@@ -97,7 +97,7 @@ def make_eval_fns(cfg: TrainConfig, env, nets):
 
         carry = (state, hist, jnp.zeros((Ah,)), jnp.array(False))
         (state, _, _, _), _ = jax.lax.scan(body, carry, jnp.arange(Tenv))
-        return state.metrics["success"]
+        return state.metrics
 
     def latent_one(params, norm, obs, prev_ah, length):
         T = obs.shape[0]
@@ -118,7 +118,7 @@ def make_eval_fns(cfg: TrainConfig, env, nets):
         lat = jax.vmap(latent_one, in_axes=(None, None, 0, 0, 0))(
             params, norm, heldout["obs"], heldout["prev_ah"], heldout["length"])
         return {"interp_success": it["success"], "interp_strategy": it["strategy"], "interp_metrics": it["metrics"],
-                "replay_success": rp, "latent": lat}
+                "replay_success": rp["success"], "replay_metrics": rp, "latent": lat}
 
     seeds_eval = jax.jit(jax.vmap(evaluate, in_axes=(0, 0, None, None)))
     return seeds_eval, codes
@@ -131,8 +131,39 @@ def heldout_arrays(demos) -> dict[str, np.ndarray]:
             "strategy": demos.strategy}
 
 
-def summarize(task: str, method: str, seeds, per_ckpt: dict[int, dict], strategy_names, codes) -> dict:
-    """Best checkpoint per seed (by replay success; interpolation's own best too), mean +- std over seeds."""
+def interpolation_events(metrics: dict, levels: dict[str, int] | None = None) -> dict[str, float]:
+    """How often each of a task's episode events happened in a set of rollouts (interpolation, or the replays
+    of one strategy's held-out demonstrations), successful or not: for an
+    event metric with values 0..3 (e.g. seqmanip's ``opened_by``: 1 human, 2 robot), the share of rollouts with
+    each non-zero value (``opened_by=1``); for a 0/1 metric, the share with 1. Continuous metrics (positions)
+    are left out. ``metrics``: name -> array whose last axis is the rollouts. Shows how far failed rollouts get
+    through a multi-phase task. ``levels`` (from ``event_levels`` of a larger set) fixes which metrics count
+    and their values, so that subsets report the same keys."""
+    out = {}
+    for k, top in (levels if levels is not None else event_levels(metrics)).items():
+        v = np.asarray(metrics[k], np.float64)
+        if top <= 1:
+            out[k] = float(np.mean(v == 1))
+        else:
+            out.update({f"{k}={x}": float(np.mean(v == x)) for x in range(1, top + 1)})
+    return out
+
+
+def event_levels(metrics: dict) -> dict[str, int]:
+    """The event metrics of a set of rollouts (integer values 0..3) and the largest value each takes."""
+    out = {}
+    for k in sorted(metrics):
+        v = np.asarray(metrics[k], np.float64)
+        if v.size and np.all(v == np.round(v)) and v.min() >= 0 and v.max() <= 3:
+            out[k] = max(int(v.max()), 1)
+    return out
+
+
+def summarize(task: str, method: str, seeds, per_ckpt: dict[int, dict], strategy_names, codes,
+              heldout_strategy=None) -> dict:
+    """Best checkpoint per seed (by replay success; interpolation's own best too), mean +- std over seeds.
+    Also, at those checkpoints: replay success per held-out strategy (``heldout_strategy``: each held-out
+    demonstration's strategy id) and the interpolation rollouts' events (``interpolation_events``)."""
     steps = sorted(per_ckpt)
     S = len(seeds)
     rep = np.array([[float(np.mean(per_ckpt[s]["replay_success"][i])) for s in steps] for i in range(S)])
@@ -155,6 +186,30 @@ def summarize(task: str, method: str, seeds, per_ckpt: dict[int, dict], strategy
         counts_total += counts
         dist_per_seed[str(seed)] = {n: float(c / max(succ.sum(), 1)) for n, c in zip(names[1:], counts[1:])}
     tot = max(counts_total[1:].sum(), 1)
+    extra = {}
+    if all("interp_metrics" in per_ckpt[st] for st in steps):
+        im = [per_ckpt[steps[best_i[i]]]["interp_metrics"] for i in range(S)]
+        levels = event_levels({k: np.stack([m[k][i] for i, m in enumerate(im)]) for k in im[0]})
+        ev = [interpolation_events({k: v[i] for k, v in im[i].items()}, levels) for i in range(S)]
+        extra["interpolation_events"] = {k: float(np.mean([e.get(k, 0.0) for e in ev])) for k in ev[0]}
+    if heldout_strategy is not None:
+        hs = np.asarray(heldout_strategy)
+        by = {}
+        for k, name in enumerate(strategy_names, start=1):
+            if (hs == k).any():
+                by[name] = float(np.mean([np.mean(np.asarray(per_ckpt[steps[best_r[i]]]["replay_success"][i])[hs == k])
+                                          for i in range(S)]))
+        extra["replay_by_strategy"] = by
+        if all("replay_metrics" in per_ckpt[st] for st in steps):  # how far the replays got, per strategy
+            extra["replay_events_by_strategy"] = {}
+            rm = [per_ckpt[steps[best_r[i]]]["replay_metrics"] for i in range(S)]
+            levels = event_levels({m: np.stack([r[m][i] for i, r in enumerate(rm)]) for m in rm[0]})
+            for k, name in enumerate(strategy_names, start=1):
+                if (hs == k).any():
+                    ev = [interpolation_events({m: np.asarray(v[i])[hs == k] for m, v in rm[i].items()}, levels)
+                          for i in range(S)]
+                    extra["replay_events_by_strategy"][name] = {m: float(np.mean([e.get(m, 0.0) for e in ev]))
+                                                                for m in ev[0]}
     return {
         "task": task,
         "method": method,
@@ -167,6 +222,7 @@ def summarize(task: str, method: str, seeds, per_ckpt: dict[int, dict], strategy
         "best_checkpoint": {str(s): {"replay": int(steps[best_r[i]]), "interpolation": int(steps[best_i[i]])}
                             for i, s in enumerate(seeds)},
         "curves": {"replay_success": rep.tolist(), "interpolation_success": itp.tolist()},
+        **extra,
     }
 
 
@@ -190,6 +246,15 @@ def results_markdown(res: dict) -> str:
         "| --- | --- |",
     ]
     lines += [f"| {k} | {100 * v:.1f} |" for k, v in res["strategy_distribution"].items()]
+    if res.get("replay_by_strategy"):
+        lines += ["", "Replay success by the held-out demonstration's strategy (best replay checkpoints, mean over "
+                  "seeds): " + ", ".join(f"{k} {100 * v:.1f} %" for k, v in res["replay_by_strategy"].items())]
+    for name, ev in (res.get("replay_events_by_strategy") or {}).items():
+        lines += ["", f"Events in replays of {name} demonstrations: "
+                  + ", ".join(f"{k} {100 * v:.0f} %" for k, v in ev.items())]
+    if res.get("interpolation_events"):
+        lines += ["", "Events in all interpolation rollouts (best interpolation checkpoints, mean over seeds): "
+                  + ", ".join(f"{k} {100 * v:.0f} %" for k, v in res["interpolation_events"].items())]
     lines += ["", "Best checkpoint (update) per seed: "
               + ", ".join(f"{s}: replay {b['replay']}, interpolation {b['interpolation']}"
                           for s, b in res["best_checkpoint"].items())]

@@ -52,8 +52,10 @@ def code_grid(n: int) -> jnp.ndarray:
     return jnp.stack(jnp.meshgrid(c, c, indexing="ij"), -1).reshape(-1, 2)
 
 
-def expert_arrays(demos, history: int) -> dict[str, np.ndarray]:
-    """Flatten padded demonstrations into per-step arrays with psi histories (numpy, done once)."""
+def expert_arrays(demos, history: int, states: bool = False) -> dict[str, np.ndarray]:
+    """Flatten padded demonstrations into per-step arrays with psi histories (numpy, done once). With
+    ``states``, also the demonstrations' simulator snapshots (``snap``) and the flat index of the step each
+    was taken before (``snap_idx``), for ``TrainConfig.demo_reset``."""
     obs, ah, ar, hist, prev, demo = [], [], [], [], [], []
     for i in range(demos.num):
         n = int(demos.length[i])
@@ -68,8 +70,14 @@ def expert_arrays(demos, history: int) -> dict[str, np.ndarray]:
         prev.append(p)
         demo.append(np.full((n,), i, np.int32))
     cat = lambda xs: np.concatenate(xs, 0).astype(np.float32)
-    return {"obs": cat(obs), "ah": cat(ah), "ar": cat(ar), "hist": cat(hist), "prev_ah": cat(prev),
-            "demo": np.concatenate(demo, 0)}
+    out = {"obs": cat(obs), "ah": cat(ah), "ar": cat(ar), "hist": cat(hist), "prev_ah": cat(prev),
+           "demo": np.concatenate(demo, 0)}
+    if states:
+        d, t = demos.state_steps()
+        start = np.concatenate([[0], np.cumsum(demos.length[:-1])]).astype(np.int64)
+        out["snap"] = demos.states[d, t // demos.state_stride].astype(np.float32)
+        out["snap_idx"] = (start[d] + t).astype(np.int32)
+    return out
 
 
 def make_networks(cfg: TrainConfig, env, disc_kind: str):
@@ -154,6 +162,8 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             "disc": nets["disc"].init(k_d, jnp.zeros((1, D + env.action_size))),
         }
         env_state = jax.vmap(env.reset)(jax.random.split(k_env, N))
+        if cfg.demo_reset > 0:  # the rollout's fresh states carry where they started (the first ones: the task's)
+            env_state = env_state.replace(info={**env_state.info, "from_demo": jnp.zeros((N,))})
         if cfg.stagger_episodes:  # first episodes end at spread-out times (legged_gym's random episode_length_buf)
             t0 = jax.random.randint(jax.random.fold_in(k_env, 1), (N,), 0, env.max_episode_steps)
             env_state = env_state.replace(info={**env_state.info, "t": t0.astype(env_state.info["t"].dtype)})
@@ -206,7 +216,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         return b
 
     # ------------------------------------------------------------------ one Co-GAIL update
-    def rollout(state: TrainState, key):
+    def rollout(state: TrainState, key, expert):
         params, norm = state.params, state.norm
         # One batch of fresh episodes per rollout, not per step: an env whose episode ends takes its fresh state
         # (for MJX tasks a reset costs a forward pass, so resetting every env every step doubled the step's cost).
@@ -214,6 +224,21 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         key, k_pool = jax.random.split(key)
         fresh = jax.vmap(env.reset)(jax.random.split(k_pool, N))
         fresh_hist = jnp.repeat(fresh.obs[:, None], K + 1, 1)
+        fresh_ah = jnp.zeros((N, Ah))
+        from_demo = jnp.zeros((N,), bool)
+        if cfg.demo_reset > 0:  # reference-state initialisation: some fresh episodes start inside a demonstration
+            k_pick, k_use = jax.random.split(jax.random.fold_in(k_pool, 1))
+            j = jax.random.randint(k_pick, (N,), 0, expert["snap"].shape[0])
+            idx = expert["snap_idx"][j]
+            mid = jax.vmap(env.restore)(expert["snap"][j])
+            from_demo = jax.random.uniform(k_use, (N,)) < cfg.demo_reset
+            fresh = jax.tree.map(lambda a, b: jnp.where(from_demo.reshape((N,) + (1,) * (a.ndim - 1)), a, b), mid, fresh)
+            fresh_hist = jnp.where(from_demo[:, None, None],
+                                   jnp.concatenate([expert["hist"][idx][:, :-1], mid.obs[:, None]], 1), fresh_hist)
+            fresh_ah = jnp.where(from_demo[:, None], expert["prev_ah"][idx], fresh_ah)
+            demo_z = jnp.tanh(params["codes"][expert["demo"][idx]]) if cfg.use_code else jnp.zeros((N, cfg.code_dim))
+        fresh = fresh.replace(info={**fresh.info, "from_demo": from_demo.astype(jnp.float32)}) \
+            if cfg.demo_reset > 0 else fresh
 
         def body(carry, key):
             env_state, z, hist, prev_ah, counter = carry
@@ -230,14 +255,18 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
                   "action": a, "act": act, "logp": logp, "value": value, "done": done.astype(jnp.float32),
                   "success": nxt.metrics["success"] * done,
                   "env_failed": nxt.info.get("failed", jnp.zeros(done.shape))}
+            if cfg.demo_reset > 0:  # which episodes started from the task's initial distribution
+                tr["fresh_done"] = done * (1 - env_state.info["from_demo"])
             z_new, counter = new_codes(counter, done, k_code)
+            if cfg.demo_reset > 0:
+                z_new = jnp.where(from_demo[:, None], demo_z, z_new)
 
             def pick(r, n):
                 return jnp.where(done.reshape(done.shape + (1,) * (n.ndim - 1)), r, n)
 
             env_state = jax.tree.map(pick, fresh, nxt)
             hist = pick(fresh_hist, jnp.concatenate([hist[:, 1:], nxt.obs[:, None]], 1))
-            prev_ah = pick(jnp.zeros_like(prev_ah), act[:, :Ah])
+            prev_ah = pick(fresh_ah, act[:, :Ah])
             z = pick(z_new, z)
             return (env_state, z, hist, prev_ah, counter), tr
 
@@ -396,7 +425,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             return bc_step(state, expert)
         rng, k_roll, k_inner, k_ppo = jax.random.split(state.rng, 4)
         state = state.replace(rng=rng)
-        state, traj, last_value = rollout(state, k_roll)
+        state, traj, last_value = rollout(state, k_roll, expert)
         flat = jax.tree.map(lambda x: x.reshape((T * N,) + x.shape[2:]), traj)
         state, inner_m = inner_updates(state, flat, expert, k_inner)
         state, r_norm, r_raw = rewards(state, traj)
@@ -406,6 +435,8 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(state.params)]))
         metrics = {**inner_m, **ppo_m, "reward": r_raw.mean(), "episodes": episodes,
                    "episode_success": traj["success"].sum() / jnp.maximum(episodes, 1.0),
+                   **({"fresh_episode_success": (traj["success"] * traj["fresh_done"]).sum()
+                       / jnp.maximum(traj["fresh_done"].sum(), 1.0)} if cfg.demo_reset > 0 else {}),
                    "env_failures": traj["env_failed"].sum(),  # MJX steps that diverged (episode ended)
                    "nonfinite": (~finite).astype(jnp.float32)}
         return state.replace(update=state.update + 1), metrics

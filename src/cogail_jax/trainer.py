@@ -49,9 +49,14 @@ def build(cfg: TrainConfig, need_heldout: bool = True) -> Setup:
     cfg = cfg.validate()
     cfg = cfg.replace(updates_per_call=effective_updates_per_call(cfg))
     env = cogail_envs.make_env(cfg.task)
-    train_path = cfg.demos or data.ensure_default_demos(env, "train", cfg.mix, num=cfg.num_demos)
+    train_path = cfg.demos or data.ensure_default_demos(env, "train", cfg.mix, num=cfg.num_demos,
+                                                        states=cfg.demo_reset > 0)
     demos = data.load_demos(train_path, env)
-    expert = train.expert_arrays(demos, cfg.history)
+    if cfg.demo_reset > 0 and demos.states is None:
+        raise ConfigError(f"demo_reset={cfg.demo_reset} needs simulator snapshots in the training demonstrations, "
+                          f"and {train_path} has none: make the file with `cogail demos --task {cfg.task}` "
+                          f"or set demo_reset=0")
+    expert = train.expert_arrays(demos, cfg.history, states=cfg.demo_reset > 0)
     heldout = None
     if need_heldout:
         hpath = cfg.heldout or data.ensure_default_demos(env, "heldout", cfg.mix)
@@ -243,10 +248,11 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
             print(f"warning: {e}; skipped", flush=True)
             continue
         out = jax.device_get(seeds_eval(state.params, state.norm, held, jax.random.PRNGKey(12345)))
-        per_ckpt[step] = {k: np.asarray(v) for k, v in out.items() if k != "interp_metrics"}
-        per_ckpt[step]["interp_metrics"] = {k: np.asarray(v) for k, v in out["interp_metrics"].items()}
+        per_ckpt[step] = {k: ({m: np.asarray(x) for m, x in v.items()} if isinstance(v, dict) else np.asarray(v))
+                          for k, v in out.items()}
         latents[step] = np.asarray(out["latent"])
-    res = evaluate.summarize(cfg.task, cfg.method, cfg.seeds, per_ckpt, s.env.strategy_names, codes)
+    res = evaluate.summarize(cfg.task, cfg.method, cfg.seeds, per_ckpt, s.env.strategy_names, codes,
+                             heldout_strategy=s.heldout["strategy"])
     best0 = res["best_checkpoint"][str(cfg.seeds[0])]["replay"]
     lat = latents[best0][0] if cfg.use_code else None
     res["latent_map"] = {"seed": int(cfg.seeds[0]), "checkpoint": int(best0),

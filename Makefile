@@ -50,7 +50,7 @@ video: install
 	$(BIN)/cogail video --task $(TASK) $(if $(wildcard $(RUN)/config.json),--run $(RUN),) --out $(RUN)/rollouts.gif
 
 test: install
-	$(BIN)/python -m pytest -q tests
+	$(BIN)/python -m pytest -q --durations=15 tests
 
 clean:
 	rm -rf runs .pytest_cache

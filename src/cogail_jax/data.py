@@ -32,11 +32,11 @@ from pathlib import Path
 import numpy as np
 
 SCHEMA_VERSION = 1
+STATE_STRIDE = 10  # steps between the simulator snapshots kept of each generated demonstration
 
 # Paper defaults: number of training demonstrations per task; held-out sets for replay evaluation.
 DEFAULT_NUM = {"fetchq": 60, "handover": 160, "seqmanip": 120}
 DEFAULT_HELDOUT = {"fetchq": 60, "handover": 60, "seqmanip": 60}
-STATE_STRIDE = 10  # steps between stored simulator snapshots of a generated demonstration
 
 
 class DatasetError(ValueError):
@@ -96,7 +96,7 @@ def save_demos(path: str | os.PathLike, env, episodes, mixture: str = "uniform",
             g.create_dataset("actions_robot", data=np.asarray(episodes.actions_robot[i, :n], np.float32))
             g.create_dataset("init", data=np.asarray(episodes.init[i], np.float32))
             if getattr(episodes, "states", None) is not None:
-                g.create_dataset("states", data=np.asarray(episodes.states[i, :n:STATE_STRIDE], np.float32))
+                g.create_dataset("states", data=np.asarray(episodes.states[i, : -(-n // STATE_STRIDE)], np.float32))
                 g.attrs["state_stride"] = STATE_STRIDE
             g.attrs["strategy"] = int(episodes.strategy[i])
             g.attrs["num_samples"] = n

@@ -130,7 +130,7 @@ H_WAIT, H_REACH, H_DESCEND, H_CLOSE, H_LIFT, H_CARRY, H_HOLD, H_RETREAT = range(
 R_WAIT, R_STAGE, R_OVER, R_DESCEND, R_CLOSE, R_RETREAT = range(6)
 
 
-class Handover(CollabEnv):
+class Handover(mc.MjxSnapshots, CollabEnv):
     """HR-Handover with brax's ``Env`` API (``pipeline_state`` is ``mjx.Data``).
 
     ``iterations`` / ``ls_iterations``: Newton solver settings; ``n_substeps``: physics steps per env step;
@@ -208,16 +208,6 @@ class Handover(CollabEnv):
 
     def _obj_mat(self, d) -> jax.Array:
         return d.xmat[self.obj_body].reshape(3, 3)
-
-    # ------------------------------------------------------------------ snapshots (base.CollabEnv.snapshot)
-    def _sim_snapshot(self, d) -> dict:
-        return mc.snapshot_data(d)
-
-    def _sim_restore(self, sim: dict):
-        return mc.restore_data(self.mx, sim, self._template)
-
-    def _observe(self, d, info: dict) -> jax.Array:
-        return self._obs(d, info)
 
     def _obs(self, d, info: dict) -> jax.Array:
         h, r = self.human, self.robot

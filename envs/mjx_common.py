@@ -380,6 +380,20 @@ def restore_data(mx: mjx.Model, sim: dict, template: mjx.Data) -> mjx.Data:
     return mjx.forward(mx, template.replace(qpos=sim["qpos"], qvel=sim["qvel"], ctrl=sim["ctrl"]))
 
 
+class MjxSnapshots:
+    """The snapshot hooks of ``base.CollabEnv.snapshot`` / ``restore`` for an MJX task (``self.mx``,
+    ``self._template`` and ``self._obs(d, info)``)."""
+
+    def _sim_snapshot(self, d) -> dict:
+        return snapshot_data(d)
+
+    def _sim_restore(self, sim: dict):
+        return restore_data(self.mx, sim, self._template)
+
+    def _observe(self, d, info: dict) -> jax.Array:
+        return self._obs(d, info)
+
+
 def rot6d(mat: jax.Array) -> jax.Array:
     """Continuous 6D rotation: first two columns of a (..., 3, 3) rotation matrix, flattened."""
     return jnp.concatenate([mat[..., :, 0], mat[..., :, 1]], axis=-1)

@@ -267,7 +267,7 @@ def seqmanip_xml(iterations: int = mc.ITERATIONS, ls_iterations: int = mc.LS_ITE
                         iterations=iterations, ls_iterations=ls_iterations, timestep=timestep)
 
 
-class SeqManip(CollabEnv):
+class SeqManip(mc.MjxSnapshots, CollabEnv):
     """HR-SeqManip with brax's ``Env`` API (``pipeline_state`` is ``mjx.Data``).
 
     ``iterations`` / ``ls_iterations``: Newton solver settings; ``n_substeps``: physics steps per env
@@ -369,16 +369,6 @@ class SeqManip(CollabEnv):
     def _any_touch(d, g: mc.Gripper, geom: str) -> jax.Array:
         a, b = g.sensors[geom]
         return (d.sensordata[a] > 0) | (d.sensordata[b] > 0)
-
-    # ------------------------------------------------------------------ snapshots (base.CollabEnv.snapshot)
-    def _sim_snapshot(self, d) -> dict:
-        return mc.snapshot_data(d)
-
-    def _sim_restore(self, sim: dict):
-        return mc.restore_data(self.mx, sim, self._template)
-
-    def _observe(self, d, info: dict) -> jax.Array:
-        return self._obs(d, info)
 
     # ------------------------------------------------------------------ observation
     def _obs(self, d, info: dict) -> jax.Array:

@@ -145,3 +145,22 @@ def test_diverged_physics_step_ends_the_episode_with_finite_state(env):
     assert float(nxt.info["failed"]) == 1.0 and float(nxt.done) == 1.0
     assert np.all(np.isfinite(np.asarray(nxt.obs)))
     np.testing.assert_array_equal(np.asarray(nxt.pipeline_state.qpos), np.asarray(d.qpos))
+
+
+def test_snapshot_restores_the_state_of_reset(env, first):
+    """env.restore(env.snapshot(s)) has reset's pytree, shapes and dtypes (what demo_reset mixes with fresh
+    episodes), and a snapshot holds the state's positions, velocities, controls, info and metrics (traced and
+    flattened only: the seqmanip test runs a restore)."""
+    r = jax.eval_shape(env.restore, jnp.zeros((env.snapshot_size,)))
+    s = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
+    assert jax.tree.structure(r) == jax.tree.structure(s)
+    assert all(a.shape == b.shape and a.dtype == b.dtype for a, b in zip(jax.tree.leaves(r), jax.tree.leaves(s)))
+    _, s1, _, _ = first  # after one step
+    snap = env.snapshot(s1)
+    assert snap.shape == (env.snapshot_size,) and snap.dtype == jnp.float32
+    tree = env._snapshot_unravel()(snap)
+    for k in ("qpos", "qvel", "ctrl"):
+        np.testing.assert_array_equal(tree["sim"][k], getattr(s1.pipeline_state, k))
+    assert int(tree["info"]["t"]) == 1 and tree["info"]["t"].dtype == jnp.int32
+    for k in s1.metrics:
+        np.testing.assert_array_equal(tree["metrics"][k], s1.metrics[k])

@@ -216,7 +216,7 @@ def env_ah(s):
     return s.env.human_action_size
 
 
-def load_run(run: Path, step: int | None):
+def load_run(run: Path, step: int | None, seed_index: int = 0):
     cfg = TrainConfig.load(run / "config.json")
     s = trainer.build(cfg)
     cfg = s.cfg
@@ -228,8 +228,8 @@ def load_run(run: Path, step: int | None):
     s.heldout["ar"] = data.load_demos(hpath, s.env, require_init=True).actions_robot
     abstract = jax.eval_shape(lambda: s.init(cfg.seeds, s.expert))
     state = ckpt.restore(mgr, step, abstract)
-    params = jax.tree.map(lambda x: x[0], state.params)  # first seed
-    norm = jax.tree.map(lambda x: x[0], state.norm)
+    params = jax.tree.map(lambda x: x[seed_index], state.params)  # one seed (the first by default)
+    norm = jax.tree.map(lambda x: x[seed_index], state.norm)
     return cfg, s, params, norm, step
 
 

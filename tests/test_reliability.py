@@ -146,6 +146,22 @@ def test_config_errors(tiny_cfg):
             tiny_cfg.replace(**bad).validate()
 
 
+def test_max_episode_steps_sets_the_time_limit_of_training_and_evaluation(tiny_cfg):
+    """``max_episode_steps`` builds the task with that time limit (training and evaluation use ``Setup.env``);
+    0 keeps the task's own; a negative value is a config error."""
+    from cogail_jax.config import ConfigError
+
+    assert trainer.build(tiny_cfg, need_heldout=False).env.max_episode_steps == 300  # fetchq's own
+    s = trainer.build(tiny_cfg.replace(max_episode_steps=40), need_heldout=False)
+    assert s.env.max_episode_steps == 40
+    state = s.env.reset(jax.random.PRNGKey(0))
+    for _ in range(40):
+        state = s.env.step(state, np.zeros(s.env.action_size, np.float32))
+    assert float(state.done) == 1.0 and int(state.info["t"]) == 40
+    with pytest.raises(ConfigError, match="max_episode_steps"):
+        tiny_cfg.replace(max_episode_steps=-1).validate()
+
+
 def test_resume_into_run_of_another_task(tiny_cfg, tmp_path):
     run = tmp_path / "run"
     run.mkdir()

@@ -48,8 +48,10 @@ def build(cfg: TrainConfig, need_heldout: bool = True) -> Setup:
 
     cfg = cfg.validate()
     cfg = cfg.replace(updates_per_call=effective_updates_per_call(cfg))
-    env = cogail_envs.make_env(cfg.task)
-    train_path = cfg.demos or data.ensure_default_demos(env, "train", cfg.mix, num=cfg.num_demos,
+    env = task_env = cogail_envs.make_env(cfg.task)  # task_env: the task's own limit (the cached demos')
+    if cfg.max_episode_steps and cfg.max_episode_steps != env.max_episode_steps:
+        env = cogail_envs.make_env(cfg.task, max_episode_steps=cfg.max_episode_steps)
+    train_path = cfg.demos or data.ensure_default_demos(task_env, "train", cfg.mix, num=cfg.num_demos,
                                                         states=cfg.demo_reset > 0)
     demos = data.load_demos(train_path, env)
     if cfg.demo_reset > 0 and demos.states is None:
@@ -59,7 +61,7 @@ def build(cfg: TrainConfig, need_heldout: bool = True) -> Setup:
     expert = train.expert_arrays(demos, cfg.history, states=cfg.demo_reset > 0)
     heldout = None
     if need_heldout:
-        hpath = cfg.heldout or data.ensure_default_demos(env, "heldout", cfg.mix)
+        hpath = cfg.heldout or data.ensure_default_demos(task_env, "heldout", cfg.mix)
         heldout = evaluate.heldout_arrays(data.load_demos(hpath, env, require_init=True))
     init, chunk, nets = train.make_train_fns(cfg, env, train.fit_normalizer(expert, cfg.obs_std_floor))
     return Setup(cfg, env, expert, heldout, init, chunk, nets, demos.metrics)

@@ -1,9 +1,22 @@
 """Shared, session-scoped fixtures: compile once, reuse everywhere (CPU, tiny sizes)."""
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import tempfile
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+# One XLA compilation cache for the whole session, in a fresh directory (CI starts empty, nothing is kept):
+# a program that several tests compile under separate jit objects (every trainer.build / make_train_fns /
+# train_run makes new ones) or in the subprocesses they start (the kill / resume test's four `cogail train`
+# runs, the 2-device runs) is compiled once and loaded from it afterwards. Set before jax is imported, in the
+# environment, so that subprocesses inherit it. The tests that check for recompilation count jit's own cache
+# entries or its "Compiling" log, which a hit here does not hide.
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+    _CACHE = tempfile.mkdtemp(prefix="cogail-test-xla-cache-")
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = _CACHE
+    atexit.register(shutil.rmtree, _CACHE, ignore_errors=True)
 
 import pytest
 

@@ -60,19 +60,28 @@ def rollout(env):
 
 @pytest.fixture(scope="module")
 def first(env):
-    """One jitted call: reset(rng), one step with an out-of-range action, reset_from(sample_init(rng))."""
+    """One jitted call: reset(rng); three single steps (one compiled step, ``lax.map`` over the inputs): from
+    the reset state with an out-of-range action, from it with zero action, and from it with the bar thrown at
+    1e4 m/s (a diverging simulation); reset_from(sample_init(rng)). (The eager MJX reset and a separately
+    jitted step the divergence test once used cost ~75 s on CPU.)"""
 
     def f(rng):
         s0 = env.reset(rng)
-        s1 = env.step(s0, jnp.zeros(env.action_size).at[0].set(5.0))  # clipped to 1 cm
+        d = s0.pipeline_state
+        bad = s0.replace(pipeline_state=d.replace(qvel=d.qvel.at[:].set(1e4)))
+        states = jax.tree.map(lambda *x: jnp.stack(x), s0, s0, bad)
+        zero = jnp.zeros(env.action_size)
+        actions = jnp.stack([zero.at[0].set(5.0), zero, zero])  # 5.0: clipped to 1 cm
+        steps = jax.lax.map(lambda sa: env.step(*sa), (states, actions))
+        s1, ok, diverged = (jax.tree.map(lambda x, i=i: x[i], steps) for i in range(3))
         init = env.sample_init(rng)
-        return s0, s1, init, env.reset_from(init)
+        return s0, s1, init, env.reset_from(init), ok, diverged
 
     return jax.device_get(jax.jit(f)(jax.random.PRNGKey(3)))
 
 
 def test_reset_step_shapes(env, first):
-    s, s2, _, _ = first
+    s, s2 = first[:2]
     assert env.action_size == 14 and env.human_action_size == env.robot_action_size == 7
     assert s.obs.shape == (env.observation_size,) and s.obs.dtype == np.float32
     assert set(s.metrics) >= {"success", "handover", "handover_x", "handover_y", "handover_z"}
@@ -84,7 +93,7 @@ def test_reset_step_shapes(env, first):
 
 
 def test_reset_from_reproduces_reset(env, first):
-    s, _, init, s_from = first
+    s, _, init, s_from = first[:4]
     assert init.shape == (env.init_size,)
     np.testing.assert_array_equal(s.obs, s_from.obs)
     np.testing.assert_array_equal(s.pipeline_state.qpos, s_from.pipeline_state.qpos)
@@ -132,19 +141,14 @@ def test_render(env, first):
     assert img.shape == (48, 64, 3) and img.dtype == np.uint8 and img.max() > 0
 
 
-def test_diverged_physics_step_ends_the_episode_with_finite_state(env):
+def test_diverged_physics_step_ends_the_episode_with_finite_state(env, first):
     """A step whose simulation diverges (here: the bar thrown at 1e4 m/s) keeps the previous state, reports
     ``failed`` and ends the episode, so no NaN or exploding observation reaches the trainer."""
-    s = env.reset(jax.random.PRNGKey(0))
-    step = jax.jit(env.step)
-    ok = step(s, jnp.zeros(env.action_size))
+    s, ok, nxt = first[0], first[4], first[5]  # the steps from reset with zero action, and with the bar thrown
     assert float(ok.info["failed"]) == 0.0 and float(ok.done) == 0.0
-    d = s.pipeline_state
-    bad = s.replace(pipeline_state=d.replace(qvel=d.qvel.at[:].set(1e4)))
-    nxt = step(bad, jnp.zeros(env.action_size))
     assert float(nxt.info["failed"]) == 1.0 and float(nxt.done) == 1.0
     assert np.all(np.isfinite(np.asarray(nxt.obs)))
-    np.testing.assert_array_equal(np.asarray(nxt.pipeline_state.qpos), np.asarray(d.qpos))
+    np.testing.assert_array_equal(np.asarray(nxt.pipeline_state.qpos), np.asarray(s.pipeline_state.qpos))
 
 
 def test_snapshot_restores_the_state_of_reset(env, first):
@@ -155,7 +159,7 @@ def test_snapshot_restores_the_state_of_reset(env, first):
     s = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
     assert jax.tree.structure(r) == jax.tree.structure(s)
     assert all(a.shape == b.shape and a.dtype == b.dtype for a, b in zip(jax.tree.leaves(r), jax.tree.leaves(s)))
-    _, s1, _, _ = first  # after one step
+    s1 = first[1]  # after one step
     snap = env.snapshot(s1)
     assert snap.shape == (env.snapshot_size,) and snap.dtype == jnp.float32
     tree = env._snapshot_unravel()(snap)

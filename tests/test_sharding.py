@@ -3,11 +3,17 @@ import subprocess
 import sys
 import textwrap
 
+# The 2-device subprocesses below check program structure (shardings, collectives, compilations), not speed: their
+# XLA backend compiles with less optimisation (about half the compile time of the MJX chunk on CPU). The
+# collectives come from XLA's SPMD partitioning, which these flags leave alone: the chunk under plain jit sharding
+# propagation (the layout the MJX test guards against) compiles to the same two all-reduces with them as without.
+FAST_COMPILE = "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false"
+
 
 def test_two_devices_match_one(tiny_cfg, tmp_path):
     script = textwrap.dedent(f"""
         import os
-        os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+        os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2 {FAST_COMPILE}"
         import jax, numpy as np
         from cogail_jax import trainer
         from cogail_jax.config import TrainConfig
@@ -48,13 +54,23 @@ def test_sharded_mjx_chunk_has_no_cross_device_collectives(tmp_path):
     every iteration: 2 x H200 ran at 0.25x one.)"""
     script = textwrap.dedent("""
         import os, re
-        os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+        os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2 FAST_COMPILE"
         import jax
+        import numpy as np
         import cogail_envs
         from cogail_jax import data, demos, trainer
         from cogail_jax.config import TrainConfig
         env = cogail_envs.make_env("handover")
-        path = data.save_demos("demos.hdf5", env, demos.generate(env, 2, seed=0), seed=0)
+        # two short made-up demonstrations: only their shapes enter the programs under test (the scripted
+        # handover rollout that would make real ones compiles for ~30 s on CPU)
+        N, L, r = 2, 12, np.random.default_rng(0)
+        fake = demos.Episodes(
+            obs=r.normal(size=(N, L, env.observation_size)).astype(np.float32),
+            actions_human=r.uniform(-1, 1, (N, L, env.human_action_size)).astype(np.float32),
+            actions_robot=r.uniform(-1, 1, (N, L, env.robot_action_size)).astype(np.float32),
+            length=np.full(N, L), strategy=np.arange(1, N + 1), executed=np.arange(1, N + 1), success=np.ones(N),
+            init=np.zeros((N, env.init_size), np.float32), final_metrics={})
+        path = data.save_demos("demos.hdf5", env, fake, seed=0)
         cfg = TrainConfig(task="handover", num_envs=2, unroll_length=2, seeds=(1, 2), updates_per_call=1,
                           total_steps=8, bc_steps=0, inner_updates=1, ppo_epochs=1, num_minibatches=1,
                           demos=str(path)).validate()
@@ -80,6 +96,6 @@ def test_sharded_mjx_chunk_has_no_cross_device_collectives(tmp_path):
         print(n)
         assert sum(n.values()) == 0, n
         print("OK")
-    """)
+    """).replace("FAST_COMPILE", FAST_COMPILE)
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=900, cwd=tmp_path)
     assert r.returncode == 0 and "OK" in r.stdout, r.stdout[-2000:] + r.stderr[-3000:]

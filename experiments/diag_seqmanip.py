@@ -21,37 +21,21 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diag_handover import load_run  # noqa: E402
+from diag_seqmanip_trace import make_trace_fn  # noqa: E402
 
-from cogail_jax import evaluate  # noqa: E402
 
 WHO = {0: "-", 1: "H", 2: "R", 3: "both"}
 
 
 def make_fn(cfg, env, nets, robot_mode):
-    K, Ah = cfg.history, env.human_action_size
-    _, robot_step = evaluate.make_robot_step(cfg, env, nets)
+    """The replay protocol, jitted and vmapped over demos: (metrics, observations per step)."""
+    trace = make_trace_fn(cfg, env, nets, robot_mode)
 
-    def one(params, norm, init, ah, ar, length):
-        state = env.reset_from(init)
-        hist = jnp.repeat(state.obs[None], K + 1, 0)
+    def run(*args):
+        m, rec = trace(*args)
+        return m, rec["obs"]
 
-        def body(carry, t):
-            state, hist, prev_ah, fin = carry
-            a_h = jnp.where(t < length, ah[jnp.minimum(t, ah.shape[0] - 1)], 0.0)
-            if robot_mode == "demo":
-                a_r = jnp.where(t < length, ar[jnp.minimum(t, ar.shape[0] - 1)], 0.0)
-                nxt = env.step(state, jnp.concatenate([a_h, a_r]))
-                nhist = jnp.concatenate([hist[1:], nxt.obs[None]], 0)
-            else:
-                nxt, nhist, _, _ = robot_step(params, norm, state, hist, prev_ah, a_h)
-            new = jax.tree.map(lambda a, b: jnp.where(fin, a, b), state, nxt)
-            return (new, nhist, a_h, fin | (nxt.done > 0)), state.obs
-
-        carry = (state, hist, jnp.zeros((Ah,)), jnp.array(False))
-        (state, _, _, _), obs = jax.lax.scan(body, carry, jnp.arange(env.max_episode_steps))
-        return state.metrics, obs
-
-    return jax.jit(jax.vmap(one, in_axes=(None, None, 0, 0, 0, 0)))
+    return run
 
 
 def main() -> None:

@@ -6,7 +6,7 @@ Loads RUN's checkpoint ``--step`` (default: the best replay checkpoint of seed `
 results.json, else the latest), and runs the replay protocol (human = open-loop actions of held-out demo i,
 robot = pi_R(s, psi(h)) deterministic) on the first N held-out demos, and the same demos with the recorded
 robot actions (the reference). Writes OUT.npz with, per demo and step, both runs' world-frame robot and human
-TCP, bar position, drawer opening, robot action, grasp flags and psi's code, the episodes' metrics, and the
+TCP, bar position, drawer opening, robot action, grasp flags, psi's code and the observation, the episodes' metrics, and the
 checkpoint's parameters and normaliser (``params_msgpack``: flax.serialization bytes of {params, norm}) so the
 policy can be studied on a CPU without the 300 MB checkpoint.
 """
@@ -48,7 +48,7 @@ def make_trace_fn(cfg, env, nets, robot_mode):
             else:
                 nxt, nhist, z, a_r = robot_step(params, norm, state, hist, prev_ah, a_h)
             d = state.pipeline_state
-            rec = {"r_tcp": mc.tcp_pos(d, env.robot), "h_tcp": mc.tcp_pos(d, env.human),
+            rec = {"obs": state.obs, "r_tcp": mc.tcp_pos(d, env.robot), "h_tcp": mc.tcp_pos(d, env.human),
                    "obj": env._obj_pos(d), "opening": env._opening(d), "a_r": a_r, "a_h": a_h, "z": z,
                    "r_grasp": state.info["robot_grasp"], "h_grasp": state.info["human_grasp"],
                    "r_handle": state.info["robot_handle"], "fin": fin}

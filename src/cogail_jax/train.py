@@ -442,11 +442,14 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         return state.replace(update=state.update + 1), metrics
 
     # ------------------------------------------------------------------ seed-vmapped, scanned, jitted
+    init_jit = jax.jit(jax.vmap(init_one))  # made once: every init() call of these functions reuses the compiled
+    bc_jit = jax.jit(jax.vmap(bc_one, in_axes=(0, None)))  # programs
+
     def init(seeds, expert):
         keys = jnp.stack([jax.random.PRNGKey(int(s)) for s in seeds])
-        state = jax.jit(jax.vmap(init_one))(keys)
+        state = init_jit(keys)
         if cfg.bc_steps:
-            state, _ = jax.jit(jax.vmap(bc_one, in_axes=(0, None)))(state, expert)
+            state, _ = bc_jit(state, expert)
         return state
 
     def chunk(state, expert):

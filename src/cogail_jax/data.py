@@ -34,9 +34,19 @@ import numpy as np
 SCHEMA_VERSION = 1
 STATE_STRIDE = 10  # steps between the simulator snapshots kept of each generated demonstration
 
-# Paper defaults: number of training demonstrations per task; held-out sets for replay evaluation.
+# The default datasets of a task: three disjoint splits, each from its own generator seed (distinct random
+# streams, so no episode of one split is an episode of another).
+#   train       the paper's training set sizes
+#   validation  our addition: checkpoint selection (the "selected" figures of results.json) is done on it,
+#               so that nothing is tuned on the test set
+#   test        the paper's 60 held-out demonstrations for replay evaluation (the config field ``heldout``
+#               names a test file; "heldout" is accepted as another name of this split)
 DEFAULT_NUM = {"fetchq": 60, "handover": 160, "seqmanip": 120}
-DEFAULT_HELDOUT = {"fetchq": 60, "handover": 60, "seqmanip": 60}
+DEFAULT_TEST = {"fetchq": 60, "handover": 60, "seqmanip": 60}
+DEFAULT_HELDOUT = DEFAULT_TEST
+DEFAULT_VALIDATION = {"fetchq": 100, "handover": 100, "seqmanip": 100}
+SPLITS = ("train", "validation", "test")
+SPLIT_SEEDS = {"train": 0, "test": 1, "validation": 2}
 
 
 class DatasetError(ValueError):
@@ -297,10 +307,24 @@ def data_dir() -> Path:
     return Path(os.environ.get("COGAIL_DATA", "data"))
 
 
+def split_name(split: str) -> str:
+    """The canonical name of a default split: train, validation or test ("heldout" is the test split)."""
+    split = "test" if split == "heldout" else split
+    if split not in SPLITS:
+        raise ValueError(f"unknown split {split!r}: use one of {', '.join(SPLITS)}")
+    return split
+
+
+def default_count(task: str, split: str) -> int:
+    """The number of demonstrations of a task's default split."""
+    split = split_name(split)
+    return {"train": DEFAULT_NUM, "validation": DEFAULT_VALIDATION, "test": DEFAULT_TEST}[split][task]
+
+
 def default_demo_path(task: str, split: str, mix: str = "uniform", num: int = 0) -> Path:
     """The cached default dataset; ``num`` > 0 (other than the task's default count) gets a file of its own."""
-    default = (DEFAULT_NUM if split == "train" else DEFAULT_HELDOUT).get(task)
-    count = f"_{num}" if num and num != default else ""
+    split = split_name(split)
+    count = f"_{num}" if num and num != default_count(task, split) else ""
     return data_dir() / f"{task}_{mix}_{split}{count}.hdf5"
 
 
@@ -317,7 +341,8 @@ def _stored_version(path: Path) -> str | None:
 
 def ensure_default_demos(env, split: str = "train", mix: str = "uniform", verbose: bool = True, num: int = 0,
                          states: bool = False) -> Path:
-    """Path of the default dataset of a task (``train`` or ``heldout``), generating it on first use; ``num`` > 0
+    """Path of the default dataset of a task (``train``, ``validation`` or ``test``, also called ``heldout``),
+    generating it on first use from the split's own generator seed (``SPLIT_SEEDS``); ``num`` > 0
     asks for that many scripted demonstrations instead of the task's default count; ``states`` regenerates a
     cached file made before demonstrations carried simulator snapshots."""
     from . import demos
@@ -329,8 +354,9 @@ def ensure_default_demos(env, split: str = "train", mix: str = "uniform", verbos
         if verbose:
             why = "under other physics" if _stored_version(path) != env.version else "without simulator snapshots"
             print(f"{path} was made {why}: regenerating it", flush=True)
-    num = num or (DEFAULT_NUM[env.name] if split == "train" else DEFAULT_HELDOUT[env.name])
-    seed = 0 if split == "train" else 1
+    split = split_name(split)
+    num = num or default_count(env.name, split)
+    seed = SPLIT_SEEDS[split]  # one generator seed per split: the splits are disjoint
     if verbose:
         print(f"making {num} {split} demonstrations for {env.name} (mixture {mix}) -> {path}", flush=True)
     eps = demos.generate(env, num, mix=mix, seed=seed)

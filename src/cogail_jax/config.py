@@ -22,7 +22,7 @@ class TrainConfig:
     seeds: tuple[int, ...] = (300, 400, 500)
     demos: str | None = None  # training demonstrations (HDF5); default: generated and cached
     heldout: str | None = None  # test demonstrations for replay evaluation (default: the task's test split)
-    validation: str | None = None  # validation demonstrations: checkpoint selection (default: the task's validation split)
+    validation: str | None = None  # validation demonstrations, for checkpoint selection (default: the task's own)
     num_demos: int = 0  # size of the generated default training set (0: the task's default, e.g. 120 for seqmanip)
     mix: str = "uniform"  # strategy mixture of the default datasets (uniform, D1, D2)
     # the task's time limit in env steps, for training and evaluation (0: the task's own: fetchq 300, handover 300,

@@ -22,16 +22,27 @@ $(BIN)/.installed: pyproject.toml
 	$(BIN)/python -m pip install -q -e '.[test]'
 	touch $@
 
+# The project, then the JAX build for this machine (tools/install_jax.py: the CUDA build matching the driver
+# when nvidia-smi finds an NVIDIA GPU, else the CPU build; CPU=1 forces the CPU build; a build already in place
+# is kept). DRY_RUN=1 only prints the pip command.
+ifeq ($(DRY_RUN),1)
+install:
+	@$(PYTHON) tools/install_jax.py --dry-run --python $(BIN)/python
+else
 install: $(BIN)/.installed browser
+	@$(BIN)/python tools/install_jax.py
+endif
 
 # Headless Chromium + chromedriver (Debian packages) for the browser tests of `cogail play`; installed when
-# missing (with sudo unless root). A failure only warns, so `make train` never depends on it.
+# missing (with sudo unless root; the package lists are refreshed only if the install fails without). A failure
+# only warns, so `make train` never depends on it.
 browser:
 	@if command -v chromium >/dev/null && command -v chromedriver >/dev/null; then :; \
 	elif command -v apt-get >/dev/null; then \
 	  SUDO=$$([ "$$(id -u)" = 0 ] || echo sudo); \
-	  { $$SUDO apt-get update -qq && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium \
-	    chromium-driver; } || echo "warning: could not install chromium chromium-driver: tests/test_play.py will fail"; \
+	  APT="$$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver"; \
+	  $$APT 2>/dev/null || { $$SUDO apt-get update -qq && $$APT; } \
+	    || echo "warning: could not install chromium chromium-driver: tests/test_play.py will fail"; \
 	else echo "warning: chromium/chromedriver missing and no apt-get: tests/test_play.py will fail"; fi
 
 # Trains with the task's settings under experiments/, then evaluates every checkpoint.

@@ -5,6 +5,19 @@
 * replay: the robot acts with pi_R(s, psi(h)) (deterministic) against open-loop replays of held-out human
   trajectories, each episode started where its demonstration started; success rate.
 * latent map: the mean psi code of each held-out demonstration.
+
+Reporting (``summarize``): every checkpoint is evaluated on the test split (replay, interpolation, latent codes)
+and on the validation split (replay). results.json reports
+
+* ``paper_protocol``: the paper's figure, for replay and interpolation separately: the checkpoint that maximises
+  the mean over seeds of the test success, with mean +- std over seeds there (std: population, ddof 0);
+* ``selected``: the checkpoint that maximises the mean over seeds of the validation replay success, with its
+  test figures (replay and interpolation): nothing is chosen on the test set, so this is the honest headline;
+* ``last``: the last checkpoint's test figures;
+* ``per_seed_best``: each seed's own best checkpoint (inflated; for reference only).
+
+Ties (equal seed means) go to the later checkpoint, in every selection. The breakdowns (strategy distribution,
+replay by strategy, events, latent map, handover spots) are computed at the selected checkpoint.
 """
 from __future__ import annotations
 
@@ -59,17 +72,55 @@ def make_robot_step(cfg: TrainConfig, env, nets):
     return psi_code, robot_step
 
 
-def make_eval_fns(cfg: TrainConfig, env, nets):
-    actor = nets["actor"].apply
+def _freeze(fin, old, new):
+    return jax.tree.map(lambda a, b: jnp.where(fin, a, b), old, new)
+
+
+def _replay_one_fn(cfg: TrainConfig, env, nets):
+    """``replay_one(params, norm, init, ah, length) -> final metrics`` of one replay episode."""
     K, Ah = cfg.history, env.human_action_size
     Tenv = env.max_episode_steps
-    psi_code, robot_step = make_robot_step(cfg, env, nets)
+    _, robot_step = make_robot_step(cfg, env, nets)
+
+    def replay_one(params, norm, init, ah, length):
+        state = env.reset_from(init)
+        hist = jnp.repeat(state.obs[None], K + 1, 0)
+
+        def body(carry, t):
+            state, hist, prev_ah, fin = carry
+            a_h = jnp.where(t < length, ah[jnp.minimum(t, ah.shape[0] - 1)], 0.0)
+            nxt, hist, _, _ = robot_step(params, norm, state, hist, prev_ah, a_h)
+            return (_freeze(fin, state, nxt), hist, a_h, fin | (nxt.done > 0)), None
+
+        carry = (state, hist, jnp.zeros((Ah,)), jnp.array(False))
+        (state, _, _, _), _ = jax.lax.scan(body, carry, jnp.arange(Tenv))
+        return state.metrics
+
+    return replay_one
+
+
+def make_replay_fn(cfg: TrainConfig, env, nets):
+    """Jitted ``replay(params, norm, episodes) -> final metrics (seeds, episodes)``: the replay protocol alone,
+    vmapped over seeds (leading axis of params / norm) and episodes (``episodes``: ``heldout_arrays`` without
+    ``strategy``). Used for the extra test sets (``eval_run(extra_sets=...)``)."""
+    replay_one = _replay_one_fn(cfg, env, nets)
+
+    def replay(params, norm, ep):
+        return jax.vmap(replay_one, in_axes=(None, None, 0, 0, 0))(params, norm, ep["init"], ep["ah"], ep["length"])
+
+    return jax.jit(jax.vmap(replay, in_axes=(0, 0, None)))
+
+
+def make_eval_fns(cfg: TrainConfig, env, nets):
+    actor = nets["actor"].apply
+    K = cfg.history
+    Tenv = env.max_episode_steps
+    psi_code, _ = make_robot_step(cfg, env, nets)
+    replay_one = _replay_one_fn(cfg, env, nets)
+    freeze = _freeze
 
     def normalize(norm, x):
         return (x - norm["mean"]) / norm["std"]
-
-    def freeze(fin, old, new):
-        return jax.tree.map(lambda a, b: jnp.where(fin, a, b), old, new)
 
     def interp_one(params, norm, z, rng):
         z = z if cfg.use_code else jnp.zeros_like(z)
@@ -84,20 +135,6 @@ def make_eval_fns(cfg: TrainConfig, env, nets):
 
         (state, _, metrics), _ = jax.lax.scan(body, (state, jnp.array(False), state.metrics), None, length=Tenv)
         return {"success": metrics["success"], "strategy": env.classify_strategy(metrics), "metrics": metrics}
-
-    def replay_one(params, norm, init, ah, length):
-        state = env.reset_from(init)
-        hist = jnp.repeat(state.obs[None], K + 1, 0)
-
-        def body(carry, t):
-            state, hist, prev_ah, fin = carry
-            a_h = jnp.where(t < length, ah[jnp.minimum(t, ah.shape[0] - 1)], 0.0)
-            nxt, hist, _, _ = robot_step(params, norm, state, hist, prev_ah, a_h)
-            return (freeze(fin, state, nxt), hist, a_h, fin | (nxt.done > 0)), None
-
-        carry = (state, hist, jnp.zeros((Ah,)), jnp.array(False))
-        (state, _, _, _), _ = jax.lax.scan(body, carry, jnp.arange(Tenv))
-        return state.metrics
 
     def latent_one(params, norm, obs, prev_ah, length):
         T = obs.shape[0]
@@ -131,6 +168,25 @@ def heldout_arrays(demos) -> dict[str, np.ndarray]:
             "strategy": demos.strategy}
 
 
+def stack_sets(sets: dict[str, dict]) -> tuple[dict[str, np.ndarray], dict[str, slice]]:
+    """Episode sets (``heldout_arrays``) as one batch: zero-padded to the longest episode and concatenated along
+    the episode axis, so that one compiled evaluation program serves them all (e.g. test and validation: they
+    differ in data only). Returns the batch (without ``strategy``) and each set's slice of the episode axis."""
+    keys = ("init", "ah", "length", "obs", "prev_ah")
+    T = max(int(v["ah"].shape[1]) for v in sets.values())
+    out, slices, i = {k: [] for k in keys}, {}, 0
+    for name, v in sets.items():
+        n = int(v["length"].shape[0])
+        slices[name] = slice(i, i + n)
+        i += n
+        for k in keys:
+            x = np.asarray(v[k])
+            if x.ndim == 3 and x.shape[1] < T:
+                x = np.concatenate([x, np.zeros((n, T - x.shape[1], x.shape[2]), x.dtype)], 1)
+            out[k].append(x)
+    return {k: np.concatenate(v, 0) for k, v in out.items()}, slices
+
+
 def interpolation_events(metrics: dict, levels: dict[str, int] | None = None) -> dict[str, float]:
     """How often each of a task's episode events happened in a set of rollouts (interpolation, or the replays
     of one strategy's held-out demonstrations), successful or not: for an
@@ -159,75 +215,209 @@ def event_levels(metrics: dict) -> dict[str, int]:
     return out
 
 
+SELECTION_RULE = ("the checkpoint with the highest mean over seeds of the validation replay success "
+                  "(ties: the later checkpoint)")
+
+
+def stat(values, seeds) -> dict:
+    """Mean +- std (population, ddof 0) over seeds, and the value of each seed."""
+    v = [float(x) for x in values]
+    return {"mean": float(np.mean(v)), "std": float(np.std(v)), "per_seed": dict(zip(map(str, seeds), v))}
+
+
+def argmax_seed_mean(curves) -> int:
+    """Index of the checkpoint whose mean over seeds is highest; ties go to the later checkpoint.
+    ``curves``: (seeds, checkpoints) success rates."""
+    m = np.round(np.asarray(curves, np.float64).mean(0), 9)  # equal counts give equal means, whatever the order
+    return int(len(m) - 1 - np.argmax(m[::-1]))
+
+
+def _per_ckpt_rate(per_ckpt, steps, key, S) -> np.ndarray:
+    return np.array([[float(np.mean(per_ckpt[s][key][i])) for s in steps] for i in range(S)])
+
+
+def strategy_distribution(strategy, success, strategy_names) -> tuple[dict, dict]:
+    """Shares of the executed strategies among successful interpolation rollouts: pooled over seeds, and per
+    seed. ``strategy`` / ``success``: (seeds, rollouts)."""
+    names = ["none", *strategy_names]
+    per_seed, total = [], np.zeros(len(names))
+    for st, ok in zip(np.asarray(strategy), np.asarray(success) > 0):
+        counts = np.bincount(np.asarray(st)[ok], minlength=len(names)).astype(float)[: len(names)]
+        total += counts
+        per_seed.append({n: float(c / max(ok.sum(), 1)) for n, c in zip(names[1:], counts[1:])})
+    tot = max(total[1:].sum(), 1)
+    return {n: float(c / tot) for n, c in zip(names[1:], total[1:])}, per_seed
+
+
 def summarize(task: str, method: str, seeds, per_ckpt: dict[int, dict], strategy_names, codes,
               heldout_strategy=None) -> dict:
-    """Best checkpoint per seed (by replay success; interpolation's own best too), mean +- std over seeds.
-    Also, at those checkpoints: replay success per held-out strategy (``heldout_strategy``: each held-out
-    demonstration's strategy id) and the interpolation rollouts' events (``interpolation_events``)."""
+    """The reporting protocol (module docstring) from the evaluations of every checkpoint.
+
+    ``per_ckpt[step]``: arrays with a leading seed axis: ``replay_success`` (seeds, test episodes),
+    ``interp_success`` / ``interp_strategy`` (seeds, codes), optionally ``val_replay_success`` (seeds, validation
+    episodes), ``interp_metrics`` / ``replay_metrics`` (name -> (seeds, n)). Without validation results there is
+    no ``selected`` checkpoint (None) and the breakdowns are at the last checkpoint. ``heldout_strategy``: each
+    test demonstration's strategy id (for the replay success per strategy)."""
     steps = sorted(per_ckpt)
     S = len(seeds)
-    rep = np.array([[float(np.mean(per_ckpt[s]["replay_success"][i])) for s in steps] for i in range(S)])
-    itp = np.array([[float(np.mean(per_ckpt[s]["interp_success"][i])) for s in steps] for i in range(S)])
-    best_r = rep.argmax(1)
-    best_i = itp.argmax(1)
+    rep = _per_ckpt_rate(per_ckpt, steps, "replay_success", S)
+    itp = _per_ckpt_rate(per_ckpt, steps, "interp_success", S)
+    has_val = all("val_replay_success" in per_ckpt[st] for st in steps)
+    val = _per_ckpt_rate(per_ckpt, steps, "val_replay_success", S) if has_val else None
+    c_r, c_i, last = argmax_seed_mean(rep), argmax_seed_mean(itp), len(steps) - 1
+    c_v = argmax_seed_mean(val) if has_val else None
+    at = c_v if has_val else last  # where the breakdowns are computed: never chosen on the test set
 
-    def stat(values):
-        v = [float(x) for x in values]
-        return {"mean": float(np.mean(v)), "std": float(np.std(v)), "per_seed": dict(zip(map(str, seeds), v))}
+    def dist(c):
+        r = per_ckpt[steps[c]]
+        return strategy_distribution(r["interp_strategy"], r["interp_success"], strategy_names)
 
-    names = ["none", *strategy_names]
-    dist_per_seed = {}
-    counts_total = np.zeros(len(names))
-    for i, seed in enumerate(seeds):
-        r = per_ckpt[steps[best_i[i]]]
-        st = np.asarray(r["interp_strategy"][i])
-        succ = np.asarray(r["interp_success"][i]) > 0
-        counts = np.bincount(st[succ], minlength=len(names)).astype(float)
-        counts_total += counts
-        dist_per_seed[str(seed)] = {n: float(c / max(succ.sum(), 1)) for n, c in zip(names[1:], counts[1:])}
-    tot = max(counts_total[1:].sum(), 1)
-    extra = {}
-    if all("interp_metrics" in per_ckpt[st] for st in steps):
-        im = [per_ckpt[steps[best_i[i]]]["interp_metrics"] for i in range(S)]
-        levels = event_levels({k: np.stack([m[k][i] for i, m in enumerate(im)]) for k in im[0]})
-        ev = [interpolation_events({k: v[i] for k, v in im[i].items()}, levels) for i in range(S)]
-        extra["interpolation_events"] = {k: float(np.mean([e.get(k, 0.0) for e in ev])) for k in ev[0]}
-    if heldout_strategy is not None:
-        hs = np.asarray(heldout_strategy)
-        by = {}
-        for k, name in enumerate(strategy_names, start=1):
-            if (hs == k).any():
-                by[name] = float(np.mean([np.mean(np.asarray(per_ckpt[steps[best_r[i]]]["replay_success"][i])[hs == k])
-                                          for i in range(S)]))
-        extra["replay_by_strategy"] = by
-        if all("replay_metrics" in per_ckpt[st] for st in steps):  # how far the replays got, per strategy
-            extra["replay_events_by_strategy"] = {}
-            rm = [per_ckpt[steps[best_r[i]]]["replay_metrics"] for i in range(S)]
-            levels = event_levels({m: np.stack([r[m][i] for i, r in enumerate(rm)]) for m in rm[0]})
-            for k, name in enumerate(strategy_names, start=1):
-                if (hs == k).any():
-                    ev = [interpolation_events({m: np.asarray(v[i])[hs == k] for m, v in rm[i].items()}, levels)
-                          for i in range(S)]
-                    extra["replay_events_by_strategy"][name] = {m: float(np.mean([e.get(m, 0.0) for e in ev]))
-                                                                for m in ev[0]}
-    return {
+    def figures(c):
+        out = {"checkpoint": int(steps[c]), "replay": stat(rep[:, c], seeds), "interpolation": stat(itp[:, c], seeds)}
+        if has_val:
+            out["validation_replay"] = stat(val[:, c], seeds)
+        return out
+
+    best_r, best_i = rep.argmax(1), itp.argmax(1)
+    res = {
         "task": task,
         "method": method,
         "seeds": list(map(int, seeds)),
         "checkpoints": steps,
-        "replay_success": stat(rep[np.arange(S), best_r]),
-        "interpolation_success": stat(itp[np.arange(S), best_i]),
-        "strategy_distribution": {n: float(c / tot) for n, c in zip(names[1:], counts_total[1:])},
-        "strategy_distribution_per_seed": dist_per_seed,
-        "best_checkpoint": {str(s): {"replay": int(steps[best_r[i]]), "interpolation": int(steps[best_i[i]])}
-                            for i, s in enumerate(seeds)},
-        "curves": {"replay_success": rep.tolist(), "interpolation_success": itp.tolist()},
-        **extra,
+        "paper_protocol": {
+            "rule": "for replay and interpolation separately: the checkpoint with the highest mean over seeds "
+                    "of the test success (ties: the later checkpoint); mean +- std over seeds there",
+            "replay": {"checkpoint": int(steps[c_r]), **stat(rep[:, c_r], seeds)},
+            "interpolation": {"checkpoint": int(steps[c_i]), **stat(itp[:, c_i], seeds),
+                              "strategy_distribution": dist(c_i)[0]},
+        },
+        "selected": {"rule": SELECTION_RULE, **figures(c_v)} if has_val else None,
+        "last": figures(last),
+        "per_seed_best": {
+            "note": "each seed's own best checkpoint on test: inflated, for reference only",
+            "replay": {**stat(rep[np.arange(S), best_r], seeds),
+                       "checkpoint": {str(sd): int(steps[best_r[i]]) for i, sd in enumerate(seeds)}},
+            "interpolation": {**stat(itp[np.arange(S), best_i], seeds),
+                              "checkpoint": {str(sd): int(steps[best_i[i]]) for i, sd in enumerate(seeds)}},
+        },
+        "breakdowns_at": {"checkpoint": int(steps[at]),
+                          "basis": "selected on validation" if has_val else "last checkpoint (no validation set)"},
     }
+    d, d_seed = dist(at)
+    res["strategy_distribution"] = d
+    res["strategy_distribution_per_seed"] = dict(zip(map(str, seeds), d_seed))
+    r_at = per_ckpt[steps[at]]
+    if "interp_metrics" in r_at:
+        im = r_at["interp_metrics"]
+        levels = event_levels(im)
+        ev = [interpolation_events({k: np.asarray(v)[i] for k, v in im.items()}, levels) for i in range(S)]
+        res["interpolation_events"] = {k: float(np.mean([e.get(k, 0.0) for e in ev])) for k in ev[0]}
+    if heldout_strategy is not None:
+        hs = np.asarray(heldout_strategy)
+        res["replay_by_strategy"] = replay_by_strategy(r_at["replay_success"], hs, strategy_names)
+        if "replay_metrics" in r_at:  # how far the replays got, per strategy
+            rm = r_at["replay_metrics"]
+            levels = event_levels(rm)
+            res["replay_events_by_strategy"] = {}
+            for k, name in enumerate(strategy_names, start=1):
+                if (hs == k).any():
+                    ev = [interpolation_events({m: np.asarray(v[i])[hs == k] for m, v in rm.items()}, levels)
+                          for i in range(S)]
+                    res["replay_events_by_strategy"][name] = {m: float(np.mean([e.get(m, 0.0) for e in ev]))
+                                                              for m in ev[0]}
+    res["curves"] = {"replay_success": rep.tolist(), "interpolation_success": itp.tolist()}
+    if has_val:
+        res["curves"]["validation_replay_success"] = val.tolist()
+    return res
+
+
+def replay_by_strategy(success, strategy, strategy_names) -> dict[str, float]:
+    """Replay success (mean over seeds) of the episodes of each strategy. ``success``: (seeds, episodes)."""
+    success, strategy = np.asarray(success, np.float64), np.asarray(strategy)
+    return {name: float(success[:, strategy == k].mean(1).mean())
+            for k, name in enumerate(strategy_names, start=1) if (strategy == k).any()}
+
+
+def summarize_extra_set(success, strategy, seeds, strategy_names, checkpoints: dict[str, int], file=None) -> dict:
+    """An extra test set replayed at given checkpoints. ``success``: {"selected": (seeds, episodes), ...} with the
+    same keys as ``checkpoints`` (e.g. selected, paper_protocol)."""
+    out = {"file": None if file is None else str(file), "episodes": int(np.asarray(strategy).shape[0])}
+    for key, step in checkpoints.items():
+        out[key] = {"checkpoint": int(step), **stat(np.asarray(success[key], np.float64).mean(1), seeds),
+                    "by_strategy": replay_by_strategy(success[key], strategy, strategy_names)}
+    return out
+
+
+def _f(d) -> str:
+    return f"{100 * d['mean']:.1f} +- {100 * d['std']:.1f}"
+
+
+def _seeds(d) -> str:
+    return ", ".join(f"{k}: {100 * v:.0f}" for k, v in d["per_seed"].items())
+
+
+def extra_set_markdown(name: str, e: dict) -> list[str]:
+    lines = [f"| {name} | {e['episodes']} |"]
+    for key in ("selected", "paper_protocol"):
+        lines[0] += (f" {_f(e[key])} (ckpt {e[key]['checkpoint']}) |" if e.get(key) else " - |")
+    return lines
 
 
 def results_markdown(res: dict) -> str:
-    f = lambda d: f"{100 * d['mean']:.1f} +- {100 * d['std']:.1f}"
+    if "paper_protocol" not in res:  # results written before the reporting protocol
+        return _results_markdown_per_seed(res)
+    pp, sel, last, psb = res["paper_protocol"], res.get("selected"), res["last"], res["per_seed_best"]
+    lines = [
+        f"# {res['method']} on {res['task']}",
+        "",
+        f"Seeds {', '.join(map(str, res['seeds']))}; {len(res['checkpoints'])} checkpoints. Success in % on the test "
+        "set, mean +- std over seeds (per seed in brackets).",
+        "",
+        "| checkpoint choice | checkpoint (update) | replay | interpolation |",
+        "| --- | --- | --- | --- |",
+    ]
+    if sel:
+        lines.append(f"| **selected on validation** (validation replay {_f(sel['validation_replay'])}) | "
+                     f"{sel['checkpoint']} | **{_f(sel['replay'])}** ({_seeds(sel['replay'])}) | "
+                     f"**{_f(sel['interpolation'])}** ({_seeds(sel['interpolation'])}) |")
+    lines += [
+        f"| paper protocol (max over checkpoints of the seed mean, per column) | replay {pp['replay']['checkpoint']}, "
+        f"interpolation {pp['interpolation']['checkpoint']} | {_f(pp['replay'])} ({_seeds(pp['replay'])}) | "
+        f"{_f(pp['interpolation'])} ({_seeds(pp['interpolation'])}) |",
+        f"| last | {last['checkpoint']} | {_f(last['replay'])} | {_f(last['interpolation'])} |",
+        f"| per-seed best (inflated, reference only) | per seed | {_f(psb['replay'])} | {_f(psb['interpolation'])} |",
+        "",
+        ("Selected: " + SELECTION_RULE + ". " if sel else "No validation set was evaluated: no selected checkpoint. ")
+        + f"The breakdowns below are at checkpoint {res['breakdowns_at']['checkpoint']} "
+        f"({res['breakdowns_at']['basis']}).",
+        "",
+        "Strategies among successful interpolation rollouts:",
+        "",
+        "| strategy | share (%) | share at the paper-protocol interpolation checkpoint (%) |",
+        "| --- | --- | --- |",
+    ]
+    ppd = pp["interpolation"].get("strategy_distribution", {})
+    lines += [f"| {k} | {100 * v:.1f} | {100 * ppd.get(k, 0.0):.1f} |" for k, v in res["strategy_distribution"].items()]
+    if res.get("replay_by_strategy"):
+        lines += ["", "Replay success by the test demonstration's strategy (mean over seeds): "
+                  + ", ".join(f"{k} {100 * v:.1f} %" for k, v in res["replay_by_strategy"].items())]
+    for name, ev in (res.get("replay_events_by_strategy") or {}).items():
+        lines += ["", f"Events in replays of {name} demonstrations: "
+                  + ", ".join(f"{k} {100 * v:.0f} %" for k, v in ev.items())]
+    if res.get("interpolation_events"):
+        lines += ["", "Events in all interpolation rollouts (mean over seeds): "
+                  + ", ".join(f"{k} {100 * v:.0f} %" for k, v in res["interpolation_events"].items())]
+    if res.get("extra_sets"):
+        lines += ["", "Extra test sets (replay success, %):", "",
+                  "| set | episodes | at the selected checkpoint | at the paper-protocol replay checkpoint |",
+                  "| --- | --- | --- | --- |"]
+        for name, e in res["extra_sets"].items():
+            lines += extra_set_markdown(name, e)
+    return "\n".join(lines) + "\n"
+
+
+def _results_markdown_per_seed(res: dict) -> str:
+    f = _f
     lines = [
         f"# {res['method']} on {res['task']}",
         "",
@@ -235,29 +425,31 @@ def results_markdown(res: dict) -> str:
         "",
         "| metric | mean +- std (%) | per seed |",
         "| --- | --- | --- |",
-        f"| replay success | {f(res['replay_success'])} | "
-        + ", ".join(f"{k}: {100 * v:.0f}" for k, v in res["replay_success"]["per_seed"].items()) + " |",
-        f"| interpolation success | {f(res['interpolation_success'])} | "
-        + ", ".join(f"{k}: {100 * v:.0f}" for k, v in res["interpolation_success"]["per_seed"].items()) + " |",
-        "",
-        "Strategies among successful interpolation rollouts:",
-        "",
-        "| strategy | share (%) |",
-        "| --- | --- |",
+        f"| replay success | {f(res['replay_success'])} | {_seeds(res['replay_success'])} |",
+        f"| interpolation success | {f(res['interpolation_success'])} | {_seeds(res['interpolation_success'])} |",
     ]
-    lines += [f"| {k} | {100 * v:.1f} |" for k, v in res["strategy_distribution"].items()]
-    if res.get("replay_by_strategy"):
-        lines += ["", "Replay success by the held-out demonstration's strategy (best replay checkpoints, mean over "
-                  "seeds): " + ", ".join(f"{k} {100 * v:.1f} %" for k, v in res["replay_by_strategy"].items())]
-    for name, ev in (res.get("replay_events_by_strategy") or {}).items():
-        lines += ["", f"Events in replays of {name} demonstrations: "
-                  + ", ".join(f"{k} {100 * v:.0f} %" for k, v in ev.items())]
-    if res.get("interpolation_events"):
-        lines += ["", "Events in all interpolation rollouts (best interpolation checkpoints, mean over seeds): "
-                  + ", ".join(f"{k} {100 * v:.0f} %" for k, v in res["interpolation_events"].items())]
-    lines += ["", "Best checkpoint (update) per seed: "
-              + ", ".join(f"{s}: replay {b['replay']}, interpolation {b['interpolation']}"
-                          for s, b in res["best_checkpoint"].items())]
+    return "\n".join(lines) + "\n"
+
+
+def extra_set_results(res: dict, name: str) -> dict:
+    """The results.json of one extra set's own directory (``replay_results_dir``): the run's identity, the set's
+    entry, and ``replay_success``: the set's figure at the checkpoint selected on validation (else the
+    paper-protocol replay checkpoint)."""
+    e = res["extra_sets"][name]
+    head = e.get("selected") or e.get("paper_protocol")
+    return {"task": res["task"], "method": res["method"], "seeds": res["seeds"], "set": name, **e,
+            "replay_success": {k: head[k] for k in ("mean", "std", "per_seed")}, "checkpoint": head["checkpoint"]}
+
+
+def extra_set_results_markdown(r: dict) -> str:
+    lines = [f"# {r['method']} on {r['task']}: replay against {r['set']}", "",
+             f"{r['episodes']} episodes from {r.get('file')}; replay success in %, mean +- std over seeds.", "",
+             "| set | episodes | at the selected checkpoint | at the paper-protocol replay checkpoint |",
+             "| --- | --- | --- | --- |", *extra_set_markdown(r["set"], r)]
+    for key in ("selected", "paper_protocol"):
+        if r.get(key) and r[key]["by_strategy"]:
+            lines += ["", f"By strategy ({key.replace('_', ' ')}): "
+                      + ", ".join(f"{k} {100 * v:.1f} %" for k, v in r[key]["by_strategy"].items())]
     return "\n".join(lines) + "\n"
 
 

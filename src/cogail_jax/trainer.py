@@ -32,6 +32,8 @@ class Setup:
     chunk: object
     nets: dict
     train_metrics: dict | None = None
+    validation: dict | None = None  # validation episodes (evaluate.heldout_arrays), for checkpoint selection
+    files: dict | None = None  # split name (test, validation) -> the demonstration file it was read from
 
 
 def effective_updates_per_call(cfg: TrainConfig) -> int:
@@ -43,7 +45,10 @@ def total_updates(cfg: TrainConfig) -> int:
     return int(math.ceil(cfg.num_updates / upc) * upc)
 
 
-def build(cfg: TrainConfig, need_heldout: bool = True) -> Setup:
+def build(cfg: TrainConfig, need_heldout: bool = True, need_validation: bool | None = None) -> Setup:
+    """Environment, demonstrations and jitted programs of a config. ``need_heldout``: load the test split
+    (``cfg.heldout`` or the task's default test file); ``need_validation`` (default: as ``need_heldout``): load
+    the validation split (``cfg.validation`` or the default validation file)."""
     import cogail_envs
 
     cfg = cfg.validate()
@@ -59,12 +64,16 @@ def build(cfg: TrainConfig, need_heldout: bool = True) -> Setup:
                           f"and {train_path} has none: make the file with `cogail demos --task {cfg.task}` "
                           f"or set demo_reset=0")
     expert = train.expert_arrays(demos, cfg.history, states=cfg.demo_reset > 0)
-    heldout = None
+    heldout, validation, files = None, None, {}
     if need_heldout:
-        hpath = cfg.heldout or data.ensure_default_demos(task_env, "heldout", cfg.mix)
-        heldout = evaluate.heldout_arrays(data.load_demos(hpath, env, require_init=True))
+        files["test"] = cfg.heldout or data.ensure_default_demos(task_env, "test", cfg.mix)
+        heldout = evaluate.heldout_arrays(data.load_demos(files["test"], env, require_init=True))
+    if need_heldout if need_validation is None else need_validation:
+        files["validation"] = cfg.validation or data.ensure_default_demos(task_env, "validation", cfg.mix)
+        validation = evaluate.heldout_arrays(data.load_demos(files["validation"], env, require_init=True))
     init, chunk, nets = train.make_train_fns(cfg, env, train.fit_normalizer(expert, cfg.obs_std_floor))
-    return Setup(cfg, env, expert, heldout, init, chunk, nets, demos.metrics)
+    return Setup(cfg, env, expert, heldout, init, chunk, nets, demos.metrics, validation,
+                 {k: str(v) for k, v in files.items()})
 
 
 def run_metadata() -> dict:
@@ -212,35 +221,144 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
 
 
 def replay_results_dir(run_dir: str | Path, replay_file: str | Path) -> Path:
-    """Where ``eval --replay-file FILE`` writes its results: RUN/replay-<file stem>/."""
+    """Where an extra test set's own results go (``eval --replay-file FILE``): RUN/replay-<file stem>/."""
     return Path(run_dir) / f"replay-{Path(replay_file).stem}"
 
 
-def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_file: str | Path | None = None) -> dict:
+def _checkpoints_to_evaluate(mgr, every: int) -> list[int]:
+    steps = [st for st in ckpt.steps(mgr) if st > 0] or ckpt.steps(mgr)
+    if every > 1 and steps:  # evaluate every k-th checkpoint (and always the last)
+        steps = sorted(set(steps[every - 1::every]) | {steps[-1]})
+    return steps
+
+
+def _split_sets(out: dict, part: dict) -> dict:
+    """One checkpoint's evaluation of the stacked test + validation batch, split into test and validation."""
+    t, v = part["test"], part["validation"]
+    r = {k: ({m: np.asarray(x) for m, x in out[k].items()} if isinstance(out[k], dict) else np.asarray(out[k]))
+         for k in ("interp_success", "interp_strategy", "interp_metrics")}
+    r["replay_success"] = np.asarray(out["replay_success"])[:, t]
+    r["val_replay_success"] = np.asarray(out["replay_success"])[:, v]
+    r["replay_metrics"] = {m: np.asarray(x)[:, t] for m, x in out["replay_metrics"].items()}
+    r["latent"] = np.asarray(out["latent"])[:, t]
+    return r
+
+
+def _extra_set_checkpoints(res: dict) -> dict[str, int]:
+    cks = {"paper_protocol": int(res["paper_protocol"]["replay"]["checkpoint"])}
+    if res.get("selected"):
+        cks = {"selected": int(res["selected"]["checkpoint"]), **cks}
+    return cks
+
+
+def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict) -> dict:
+    """Replay each extra set at the selected and the paper-protocol replay checkpoints (one compiled replay
+    program per set shape); returns {name: evaluate.summarize_extra_set(...)}."""
+    replay = evaluate.make_replay_fn(s.cfg, s.env, s.nets)
+    cks = _extra_set_checkpoints(res)
+    states = {st: ckpt.restore(mgr, st, abstract) for st in sorted(set(cks.values()))}
+    out = {}
+    for name, path in extra_sets.items():
+        ep = evaluate.heldout_arrays(data.load_demos(path, s.env, require_init=True))
+        arrays = {k: v for k, v in ep.items() if k != "strategy"}
+        succ = {key: np.asarray(jax.device_get(replay(states[st].params, states[st].norm, arrays))["success"])
+                for key, st in cks.items()}
+        out[name] = evaluate.summarize_extra_set(succ, ep["strategy"], s.cfg.seeds, s.env.strategy_names, cks,
+                                                 file=path)
+    return out
+
+
+def _save_extra_sets(run_dir: Path, res: dict, names) -> None:
+    for name in names:
+        d = replay_results_dir(run_dir, name)
+        d.mkdir(parents=True, exist_ok=True)
+        r = evaluate.extra_set_results(res, name)
+        (d / "results.json").write_text(json.dumps(r, indent=2))
+        (d / "results.md").write_text(evaluate.extra_set_results_markdown(r))
+
+
+def _extra_sets(extra_sets, replay_file) -> dict[str, str]:
+    sets = {str(k): str(v) for k, v in (extra_sets or {}).items()}
+    if replay_file is not None:
+        sets[Path(replay_file).stem] = str(replay_file)
+    for name in sets:
+        if not name or "/" in name or name.startswith("."):
+            raise RunError(f"extra set name {name!r} cannot name a directory: use letters, digits, - and _")
+    return sets
+
+
+def results_current(run_dir: str | Path, every: int = 1) -> bool:
+    """Whether RUN/results.json follows the reporting protocol and covers exactly the checkpoints that
+    ``eval_run(run_dir, every=every)`` would evaluate now (so extra sets can be added without re-evaluating)."""
+    run_dir = Path(run_dir)
+    try:
+        res = json.loads((run_dir / "results.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return ("paper_protocol" in res and res.get("selected") is not None
+            and res.get("checkpoints") == _checkpoints_to_evaluate(ckpt.manager(run_dir), every))
+
+
+def eval_extra_sets(run_dir: str | Path, extra_sets: dict[str, str | Path]) -> dict:
+    """Add extra test sets to an evaluated run without evaluating every checkpoint again: each set (name ->
+    demonstration file with ``init``, e.g. recorded trials, an imported file, varied human trajectories) is
+    replayed at the checkpoints RUN/results.json chose (selected on validation, paper-protocol replay); the
+    results are merged into results.json's ``extra_sets`` (a set of the same name is replaced), results.md is
+    rewritten, and each set also gets RUN/replay-<name>/results.{json,md}. Returns the updated results."""
+    run_dir = Path(run_dir)
+    sets = _extra_sets(extra_sets, None)
+    try:
+        res = json.loads((run_dir / "results.json").read_text())
+    except (OSError, ValueError):
+        raise RunError(f"{run_dir} has not been evaluated yet (no readable results.json): run `cogail eval --run "
+                       f"{run_dir}` first")
+    if "paper_protocol" not in res:
+        raise RunError(f"{run_dir}/results.json predates the reporting protocol: evaluate the run again")
+    s = build(TrainConfig.load(run_dir / "config.json"), need_heldout=False)
+    mgr = ckpt.manager(run_dir)
+    abstract = jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert))
+    res["extra_sets"] = {**(res.get("extra_sets") or {}), **_replay_extra_sets(s, mgr, abstract, res, sets)}
+    evaluate.save_results(run_dir, res)
+    _save_extra_sets(run_dir, res, sets)
+    return res
+
+
+def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_file: str | Path | None = None,
+             extra_sets: dict[str, str | Path] | None = None) -> dict:
     """Evaluate every checkpoint of a run; write results.json / results.md and figures into the run dir.
 
-    ``replay_file``: a demonstration file (e.g. the trials ``cogail play`` recorded) used as the held-out set of
-    replay evaluation instead of the run's; results then go to ``replay_results_dir(run_dir, replay_file)``."""
+    Every checkpoint and seed is evaluated on the test split (replay, interpolation, latent codes) and on the
+    validation split (replay), test and validation stacked into one batch of one compiled program;
+    ``evaluate.summarize`` turns that into the reported figures (paper protocol, selected on validation, last).
+
+    ``extra_sets``: {name: demonstration file}: further test sets (recorded trials, imported files, varied human
+    trajectories, one file per variation), each replayed at the selected checkpoint and at the paper-protocol
+    replay checkpoint; results in results.json's ``extra_sets[name]`` and in RUN/replay-<name>/results.{json,md}.
+    ``replay_file``: one more extra set, named after the file's stem. To add sets to a run evaluated already,
+    ``eval_extra_sets`` skips the evaluation of every checkpoint."""
     run_dir = Path(run_dir)
     if not (run_dir / "config.json").exists():
         raise RunError(f"{run_dir} is not a run directory (no config.json): pass the --run of a training run")
+    sets = _extra_sets(extra_sets, replay_file)
+    try:  # the extra sets of an earlier evaluation are evaluated again at the new checkpoints
+        prev = json.loads((run_dir / "results.json").read_text()).get("extra_sets") or {}
+    except (OSError, ValueError, AttributeError):
+        prev = {}
+    for name, e in prev.items():
+        if name not in sets and isinstance(e, dict) and e.get("file") and Path(e["file"]).exists():
+            sets[name] = e["file"]
     cfg = TrainConfig.load(run_dir / "config.json")
     out_dir = run_dir
-    if replay_file is not None:
-        cfg = cfg.replace(heldout=str(replay_file))
-        out_dir = replay_results_dir(run_dir, replay_file)
     s = build(cfg)
     cfg = s.cfg
     mgr = ckpt.manager(run_dir)
-    steps = [st for st in ckpt.steps(mgr) if st > 0] or ckpt.steps(mgr)
-    if every > 1:  # evaluate every k-th checkpoint (and always the last)
-        steps = sorted(set(steps[every - 1::every]) | {steps[-1]})
+    steps = _checkpoints_to_evaluate(mgr, every)
     if not steps:
         raise RunError(f"{run_dir} has no checkpoints yet: train it first")
     abstract = jax.eval_shape(lambda: s.init(cfg.seeds, s.expert))
     seeds_eval, codes = evaluate.make_eval_fns(cfg, s.env, s.nets)
-    held = {k: v for k, v in s.heldout.items() if k != "strategy"}
-    per_ckpt, latents = {}, {}
+    held, part = evaluate.stack_sets({"test": s.heldout, "validation": s.validation})
+    per_ckpt = {}
     from tqdm import tqdm
 
     for step in tqdm(steps, desc="eval", disable=not progress, file=sys.stdout):
@@ -250,27 +368,27 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
             print(f"warning: {e}; skipped", flush=True)
             continue
         out = jax.device_get(seeds_eval(state.params, state.norm, held, jax.random.PRNGKey(12345)))
-        per_ckpt[step] = {k: ({m: np.asarray(x) for m, x in v.items()} if isinstance(v, dict) else np.asarray(v))
-                          for k, v in out.items()}
-        latents[step] = np.asarray(out["latent"])
+        per_ckpt[step] = _split_sets(out, part)
     res = evaluate.summarize(cfg.task, cfg.method, cfg.seeds, per_ckpt, s.env.strategy_names, codes,
                              heldout_strategy=s.heldout["strategy"])
-    best0 = res["best_checkpoint"][str(cfg.seeds[0])]["replay"]
-    lat = latents[best0][0] if cfg.use_code else None
-    res["latent_map"] = {"seed": int(cfg.seeds[0]), "checkpoint": int(best0),
+    res["splits"] = {name: {"file": s.files[name], "episodes": int(part[name].stop - part[name].start)}
+                     for name in ("test", "validation")}
+    at = per_ckpt[res["breakdowns_at"]["checkpoint"]]  # the selected checkpoint
+    i0 = int(np.argmax(at["val_replay_success"].mean(1)))  # latent map: the seed best on validation there
+    lat = at["latent"][i0] if cfg.use_code else None
+    res["latent_map"] = {"seed": int(cfg.seeds[i0]), "checkpoint": res["breakdowns_at"]["checkpoint"],
                          "codes": None if lat is None else lat.tolist(),
                          "strategy": np.asarray(s.heldout["strategy"]).tolist()}
+    if sets:
+        res["extra_sets"] = _replay_extra_sets(s, mgr, abstract, res, sets)
     out_dir.mkdir(parents=True, exist_ok=True)
     evaluate.save_results(out_dir, res)
+    _save_extra_sets(out_dir, res, sets)
     evaluate.write_figures(out_dir, res, lat, np.asarray(s.heldout["strategy"]), s.env.strategy_names)
-    best_i = [res["best_checkpoint"][str(sd)]["interpolation"] for sd in cfg.seeds]
-    first = per_ckpt[best_i[0]]["interp_metrics"]
-    if "handover_x" in first:  # HR-Handover: where the handovers happened (paper Fig. 4a)
-        im = {k: np.stack([per_ckpt[b]["interp_metrics"][k][i] for i, b in enumerate(best_i)])
-              for k in ("handover_x", "handover_y", "handover_z")}
-        succ = np.stack([per_ckpt[b]["interp_success"][i] for i, b in enumerate(best_i)])
-        evaluate.write_handover_spots(out_dir, res, im, succ, s.train_metrics)
+    if "handover_x" in at["interp_metrics"]:  # HR-Handover: where the handovers happened (paper Fig. 4a)
+        im = {k: at["interp_metrics"][k] for k in ("handover_x", "handover_y", "handover_z")}
+        evaluate.write_handover_spots(out_dir, res, im, at["interp_success"], s.train_metrics)
     return res
 
 
-__all__ = ["train_run", "eval_run", "RunError", "ConfigError", "build"]
+__all__ = ["train_run", "eval_run", "eval_extra_sets", "RunError", "ConfigError", "build"]

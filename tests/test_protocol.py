@@ -1,0 +1,171 @@
+"""The reporting protocol (evaluate.summarize) on made-up curves with a known answer, the disjoint default
+splits, and one tiny evaluation with a validation set and an extra test set."""
+import json
+
+import numpy as np
+import pytest
+
+from cogail_jax import evaluate
+
+SEEDS = (1, 2, 3)
+STEPS = (10, 20, 30, 40)
+# success rates, (seeds, checkpoints); 4 episodes / codes each, so every rate is a multiple of 1/4
+TEST_REPLAY = [[0.25, 1.0, 0.5, 0.5],
+               [0.5, 0.25, 0.75, 0.5],
+               [0.75, 0.25, 0.5, 0.5]]  # seed means 0.5, 0.5, 0.583, 0.5: paper protocol -> 30
+VAL_REPLAY = [[0.0, 0.5, 0.5, 0.5],
+              [0.0, 0.5, 0.25, 0.75],
+              [0.0, 0.5, 0.75, 0.25]]  # seed means 0, 0.5, 0.5, 0.5: a three-way tie -> the later, 40
+INTERP = [[0.0, 0.5, 1.0, 0.25],
+          [0.0, 0.75, 0.5, 0.25],
+          [0.0, 0.25, 0.75, 0.25]]  # seed means 0, 0.5, 0.75, 0.25: paper protocol -> 30
+
+
+def _episodes(rate, n=4):
+    k = int(round(rate * n))
+    return np.array([1.0] * k + [0.0] * (n - k))
+
+
+def _per_ckpt(validation=True):
+    out = {}
+    for c, step in enumerate(STEPS):
+        strat = np.array([[c % 4 + 1, 1, 2, 3]] * len(SEEDS))  # executed strategy of each interpolation rollout
+        r = {"replay_success": np.stack([_episodes(TEST_REPLAY[i][c]) for i in range(3)]),
+             "interp_success": np.stack([_episodes(INTERP[i][c]) for i in range(3)]),
+             "interp_strategy": strat}
+        if validation:
+            r["val_replay_success"] = np.stack([_episodes(VAL_REPLAY[i][c]) for i in range(3)])
+        out[step] = r
+    return out
+
+
+def _stat(values):
+    return {"mean": pytest.approx(np.mean(values)), "std": pytest.approx(np.std(values)),
+            "per_seed": {str(s): pytest.approx(v) for s, v in zip(SEEDS, values)}}
+
+
+def test_paper_protocol_selected_last_and_per_seed_best():
+    res = evaluate.summarize("fetchq", "cogail", SEEDS, _per_ckpt(), ("s1", "s2", "s3", "s4"), None)
+    rep, val, itp = (np.array(x) for x in (TEST_REPLAY, VAL_REPLAY, INTERP))
+    pp = res["paper_protocol"]
+    # the paper: the checkpoint maximising the seed MEAN, mean +- std over seeds there, per column
+    assert pp["replay"]["checkpoint"] == 30 and pp["interpolation"]["checkpoint"] == 30
+    assert {k: pp["replay"][k] for k in ("mean", "std", "per_seed")} == _stat(rep[:, 2])
+    assert pp["replay"]["mean"] == pytest.approx(7 / 12)
+    assert {k: pp["interpolation"][k] for k in ("mean", "std", "per_seed")} == _stat(itp[:, 2])
+    # selected on validation (tie 20 / 30 / 40 -> the later), reported on test
+    sel = res["selected"]
+    assert sel["checkpoint"] == 40
+    assert sel["validation_replay"] == _stat(val[:, 3])
+    assert sel["replay"] == _stat(rep[:, 3]) and sel["replay"]["std"] == 0.0
+    assert sel["interpolation"] == _stat(itp[:, 3])
+    assert res["last"]["checkpoint"] == 40 and res["last"]["replay"] == _stat(rep[:, 3])
+    # each seed's own best: 1.0 (20), 0.75 (30), 0.75 (10): inflated above the paper protocol
+    psb = res["per_seed_best"]
+    assert psb["replay"]["mean"] == pytest.approx(2.5 / 3) and psb["replay"]["mean"] > pp["replay"]["mean"]
+    assert psb["replay"]["checkpoint"] == {"1": 20, "2": 30, "3": 10}
+    assert psb["interpolation"]["checkpoint"] == {"1": 30, "2": 20, "3": 30}
+    assert "best_checkpoint" not in res and "replay_success" not in res  # no per-seed best at the top
+    # the breakdowns are at the selected checkpoint; Fig. 3's paper-protocol distribution at 30
+    assert res["breakdowns_at"] == {"checkpoint": 40, "basis": "selected on validation"}
+    # at 40 (c = 3) the successful rollout (the first, 1 of 4) executed strategy 4
+    assert res["strategy_distribution"] == {"s1": 0.0, "s2": 0.0, "s3": 0.0, "s4": 1.0}
+    # at 30 (c = 2): seed 1 all four succeed (3, 1, 2, 3), seed 2 two (3, 1), seed 3 three (3, 1, 2): 9 in all
+    assert pp["interpolation"]["strategy_distribution"] == pytest.approx(
+        {"s1": 3 / 9, "s2": 2 / 9, "s3": 4 / 9, "s4": 0.0})
+    assert np.array_equal(res["curves"]["replay_success"], rep)
+    assert np.array_equal(res["curves"]["validation_replay_success"], val)
+    assert np.array_equal(res["curves"]["interpolation_success"], itp)
+    json.dumps(res)  # results.json is plain JSON
+    md = evaluate.results_markdown(res)
+    assert md.index("selected on validation") < md.index("paper protocol") < md.index("| last |")
+    assert "**50.0 +- 0.0**" in md and "58.3 +- 11.8" in md and "inflated" in md
+
+
+def test_ties_go_to_the_later_checkpoint_whatever_the_rounding():
+    thirds = np.array([[0.1 + 0.2, 0.3], [1 / 3, 1 / 3]])  # equal means, up to float rounding
+    assert evaluate.argmax_seed_mean(thirds) == 1
+    assert evaluate.argmax_seed_mean(np.array([[0.2, 0.1, 0.2]])) == 2
+    assert evaluate.argmax_seed_mean(np.array([[0.9, 0.1, 0.2]])) == 0
+
+
+def test_without_validation_there_is_no_selected_checkpoint():
+    res = evaluate.summarize("fetchq", "cogail", SEEDS, _per_ckpt(validation=False), ("a", "b", "c", "d"), None)
+    assert res["selected"] is None and "validation_replay_success" not in res["curves"]
+    assert res["breakdowns_at"]["checkpoint"] == 40 and res["paper_protocol"]["replay"]["checkpoint"] == 30
+    assert "no selected checkpoint" in evaluate.results_markdown(res)
+
+
+def test_stack_sets_and_extra_set_summary():
+    a = {"init": np.ones((2, 3)), "ah": np.ones((2, 5, 2)), "length": np.array([5, 4]), "obs": np.ones((2, 5, 6)),
+         "prev_ah": np.ones((2, 5, 2)), "strategy": np.array([1, 2])}
+    b = {"init": np.zeros((3, 3)), "ah": np.ones((3, 7, 2)), "length": np.array([7, 1, 2]),
+         "obs": np.ones((3, 7, 6)), "prev_ah": np.ones((3, 7, 2)), "strategy": np.array([1, 1, 1])}
+    batch, part = evaluate.stack_sets({"test": a, "validation": b})
+    assert part == {"test": slice(0, 2), "validation": slice(2, 5)} and "strategy" not in batch
+    assert batch["ah"].shape == (5, 7, 2) and batch["ah"][:2, 5:].sum() == 0 and batch["obs"].shape == (5, 7, 6)
+    np.testing.assert_array_equal(batch["length"], [5, 4, 7, 1, 2])
+    succ = {"selected": np.array([[1, 0, 1, 1], [0, 0, 1, 1]]), "paper_protocol": np.ones((2, 4))}
+    e = evaluate.summarize_extra_set(succ, np.array([1, 1, 2, 2]), (7, 8), ("x", "y"),
+                                     {"selected": 40, "paper_protocol": 30}, file="f.hdf5")
+    assert e["episodes"] == 4 and e["selected"]["checkpoint"] == 40
+    assert e["selected"]["mean"] == pytest.approx(0.625) and e["selected"]["per_seed"] == {"7": 0.75, "8": 0.5}
+    assert e["selected"]["by_strategy"] == {"x": 0.25, "y": 1.0} and e["paper_protocol"]["mean"] == 1.0
+
+
+def test_default_splits_are_disjoint(fetchq, tmp_path, monkeypatch):
+    """train, validation and test default files come from distinct generator seeds: no episode of one is an
+    episode of another (no shared start state, no shared human action sequence)."""
+    from cogail_jax import data
+
+    monkeypatch.setenv("COGAIL_DATA", str(tmp_path))
+    monkeypatch.setitem(data.DEFAULT_NUM, "fetchq", 12)
+    monkeypatch.setitem(data.DEFAULT_VALIDATION, "fetchq", 12)
+    monkeypatch.setitem(data.DEFAULT_TEST, "fetchq", 12)
+    files = {sp: data.ensure_default_demos(fetchq, sp, verbose=False) for sp in data.SPLITS}
+    assert data.ensure_default_demos(fetchq, "heldout", verbose=False) == files["test"]  # another name of test
+    assert len({p.name for p in files.values()}) == 3
+    d = {sp: data.load_demos(p, fetchq, require_init=True) for sp, p in files.items()}
+    for sp, x in d.items():
+        assert x.num >= 10, sp
+    for a, b in (("train", "validation"), ("train", "test"), ("validation", "test")):
+        inits = {tuple(np.round(v, 6)) for v in d[a].init}
+        assert not inits & {tuple(np.round(v, 6)) for v in d[b].init}, (a, b)
+        acts = {d[a].actions_human[i, : d[a].length[i]].tobytes() for i in range(d[a].num)}
+        assert not acts & {d[b].actions_human[i, : d[b].length[i]].tobytes() for i in range(d[b].num)}, (a, b)
+    with pytest.raises(ValueError, match="unknown split"):
+        data.default_demo_path("fetchq", "dev")
+
+
+def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, fetchq, tmp_path):
+    """A tiny run: every checkpoint on test and validation, the protocol's keys, and an extra set. The extra
+    set is the test file itself, so its replay figures must equal the test replay figures at the same
+    checkpoints (the replay-only program and the stacked test + validation program agree)."""
+    from cogail_jax import data, demos, trainer
+
+    val = data.save_demos(tmp_path / "val.hdf5", fetchq, demos.generate(fetchq, 6, seed=2), seed=2)
+    cfg = tiny_cfg.replace(seeds=(3, 5), validation=str(val))
+    run = tmp_path / "run"
+    trainer.train_run(cfg, run, progress=False, stop_after=4)
+    res = trainer.eval_run(run, progress=False, extra_sets={"again": demo_files[1]})
+    assert res["checkpoints"] == [2, 4]
+    assert res["splits"]["validation"] == {"file": str(val), "episodes": 6}
+    assert res["splits"]["test"]["episodes"] == 4
+    assert np.asarray(res["curves"]["validation_replay_success"]).shape == (2, 2)
+    sel, pp = res["selected"], res["paper_protocol"]
+    assert sel["checkpoint"] in (2, 4) and res["latent_map"]["checkpoint"] == sel["checkpoint"]
+    e = res["extra_sets"]["again"]
+    assert e["episodes"] == 4 and e["selected"]["checkpoint"] == sel["checkpoint"]
+    assert e["selected"]["per_seed"] == sel["replay"]["per_seed"]
+    assert e["paper_protocol"]["checkpoint"] == pp["replay"]["checkpoint"]
+    assert e["paper_protocol"]["per_seed"] == pp["replay"]["per_seed"]
+    saved = json.loads((run / "results.json").read_text())
+    assert list(saved)[:4] == ["task", "method", "seeds", "checkpoints"] and "extra_sets" in saved
+    own = json.loads((run / "replay-again" / "results.json").read_text())
+    assert own["replay_success"]["per_seed"] == sel["replay"]["per_seed"]
+    # adding a set later replays it at the same checkpoints only; the earlier set is kept
+    assert trainer.results_current(run)
+    res2 = trainer.eval_extra_sets(run, {"val-again": val})
+    assert set(res2["extra_sets"]) == {"again", "val-again"}
+    assert res2["extra_sets"]["val-again"]["selected"]["per_seed"] == sel["validation_replay"]["per_seed"]
+    assert "val-again" in (run / "results.md").read_text()

@@ -119,3 +119,55 @@ def test_brax_shim_places_like_pmap_so_the_epoch_compiles_once():
     state = jax.block_until_ready(epoch(epoch(state)))
     assert len(compiles) == before
     assert float(state["w"][0, 0]) == 8.0
+
+
+@pytest.mark.parametrize("text,value", [("false", False), ("False", False), ("0", False), ("no", False),
+                                        ("off", False), ("true", True), ("1", True), ("yes", True)])
+def test_set_parses_booleans(text, value):
+    a = cli.build_parser().parse_args(["train", "--run", "x", "--set", f"disc_instance_noise={text}",
+                                       "--set", "reward_norm=" + text])
+    cfg = cli._config_from_args(a)
+    assert cfg.disc_instance_noise is value and cfg.reward_norm is value
+
+
+def test_set_parses_numbers_seeds_and_optional_files():
+    from cogail_jax.config import ConfigError
+
+    a = cli.build_parser().parse_args(["train", "--run", "x", "--set", "total_steps=1e6", "--set", "lr=2e-4",
+                                       "--set", "seeds=1,2", "--set", "validation=v.hdf5", "--set", "heldout=none"])
+    cfg = cli._config_from_args(a)
+    assert (cfg.total_steps, cfg.lr, cfg.seeds, cfg.validation, cfg.heldout) == (1_000_000, 2e-4, (1, 2), "v.hdf5",
+                                                                                 None)
+    for bad, needle in (("reward_norm=maybe", "true or false"), ("num_envs=2.5", "an integer"),
+                        ("lr=fast", "a number"), ("nope=1", "unknown config field")):
+        with pytest.raises(ConfigError, match=needle):
+            cli._config_from_args(cli.build_parser().parse_args(["train", "--run", "x", "--set", bad]))
+
+
+@pytest.mark.parametrize("extra,want", [([], True), (["--nondeterministic"], False)])
+def test_the_cli_makes_gpu_execution_deterministic_by_default(extra, want, tmp_path, monkeypatch):
+    """Every command sets XLA_FLAGS (appending to what is there) before JAX starts; --nondeterministic
+    removes the flag; run_info.json records the setting."""
+    from cogail_jax import trainer
+
+    monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/nowhere --xla_gpu_deterministic_ops=true")
+    assert cli.main(["report", "--run", str(tmp_path / "none"), *extra]) == 2  # parses, sets, then fails
+    flags = __import__("os").environ["XLA_FLAGS"].split()
+    assert flags[0] == "--xla_dump_to=/tmp/nowhere"
+    assert ("--xla_gpu_deterministic_ops=true" in flags) is want and cli.deterministic_ops() is want
+    assert trainer.run_metadata()["xla_gpu_deterministic_ops"] is want
+    monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/nowhere")
+    assert cli.main(["report", "--run", str(tmp_path / "none"), *extra]) == 2
+    assert __import__("os").environ["XLA_FLAGS"] == "--xla_dump_to=/tmp/nowhere" + (
+        " --xla_gpu_deterministic_ops=true" if want else "")
+    monkeypatch.delenv("XLA_FLAGS")
+    assert cli.main(["report", "--run", str(tmp_path / "none"), *extra]) == 2
+    assert ("XLA_FLAGS" in __import__("os").environ) is want
+
+
+def test_the_installed_command_sets_the_flag_before_jax_starts():
+    code = ("import os, sys; from cogail_jax import cli; cli.main(sys.argv[1:]); "
+            "import jax; print('FLAGS', os.environ.get('XLA_FLAGS'), jax.devices()[0].platform)")
+    r = subprocess.run([sys.executable, "-c", code, "report", "--run", "/nonexistent"], capture_output=True,
+                       text=True, timeout=120, env={**__import__("os").environ, "XLA_FLAGS": ""})
+    assert "FLAGS --xla_gpu_deterministic_ops=true cpu" in r.stdout, r.stderr

@@ -9,6 +9,32 @@ from pathlib import Path
 
 os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 
+DETERMINISTIC_FLAG = "--xla_gpu_deterministic_ops"
+
+
+def set_deterministic(on: bool = True) -> bool:
+    """Deterministic GPU execution (XLA's ``--xla_gpu_deterministic_ops=true``, appended to any XLA_FLAGS), the
+    default of every ``cogail`` command; ``on=False`` (``--nondeterministic``) removes it. An explicit
+    ``--xla_gpu_deterministic_ops=...`` already in XLA_FLAGS is kept when ``on``. Takes effect only if called
+    before JAX starts its backend (the CLI calls it first thing). Returns ``deterministic_ops()``."""
+    flags = os.environ.get("XLA_FLAGS", "").split()
+    if not on:
+        flags = [f for f in flags if not f.startswith(DETERMINISTIC_FLAG)]
+    elif not any(f.startswith(DETERMINISTIC_FLAG) for f in flags):
+        flags.append(f"{DETERMINISTIC_FLAG}=true")
+    if flags:
+        os.environ["XLA_FLAGS"] = " ".join(flags)
+    else:
+        os.environ.pop("XLA_FLAGS", None)
+    return deterministic_ops()
+
+
+def deterministic_ops() -> bool:
+    """Whether XLA_FLAGS asks for deterministic GPU execution (the last ``--xla_gpu_deterministic_ops`` wins)."""
+    vals = [f.split("=", 1)[1] if "=" in f else "true" for f in os.environ.get("XLA_FLAGS", "").split()
+            if f.split("=", 1)[0] == DETERMINISTIC_FLAG]
+    return bool(vals) and vals[-1].lower() in ("true", "1")
+
 
 def _seeds(text: str) -> tuple[int, ...]:
     try:
@@ -60,7 +86,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--checkpoint-every", type=_positive, default=None, help="updates between checkpoints")
     t.add_argument("--bc-steps", type=int, default=None, help="behaviour-cloning pre-training steps (0 = off)")
     t.add_argument("--demos", default=None, help="training demonstrations (HDF5); default: generated and cached")
-    t.add_argument("--heldout", default=None, help="held-out demonstrations for replay evaluation")
+    t.add_argument("--heldout", default=None,
+                   help="test demonstrations for replay evaluation (default: the task's test split, made and cached)")
+    t.add_argument("--validation", default=None,
+                   help="validation demonstrations for checkpoint selection (default: the task's validation split)")
     t.add_argument("--mix", default=None, help="mixture of the default datasets: uniform, D1, D2")
     t.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override any config field, e.g. --set lambda_a=2.0 (repeatable)")
@@ -73,12 +102,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser("eval", help="evaluate every checkpoint of a run (interpolation, replay, latent map)",
                        description="Interpolation and replay evaluation of every checkpoint and seed; writes "
-                                   "results.json, results.md and figures into the run directory.")
+                                   "results.json, results.md and figures into the run directory. Reported as the "
+                                   "paper does (per column, the checkpoint with the best mean over seeds on test), "
+                                   "beside the checkpoint selected on the validation set (reported on test) and "
+                                   "the last checkpoint.")
     e.add_argument("--run", required=True, help="run directory")
     e.add_argument("--every", type=_positive, default=1, help="evaluate every k-th checkpoint (default 1: all)")
-    e.add_argument("--replay-file", default=None, metavar="FILE.hdf5",
-                   help="replay evaluation against these demonstrations (e.g. the trials `cogail play` recorded) "
-                        "instead of the run's held-out set; results go to RUN/replay-<file name>/")
+    e.add_argument("--replay-file", action="append", default=[], metavar="FILE.hdf5",
+                   help="an extra test set (e.g. the trials `cogail play` recorded, an imported file): replayed at "
+                        "the checkpoint selected on validation and at the paper-protocol replay checkpoint; results "
+                        "in results.json's extra_sets and in RUN/replay-<file name>/ (repeatable)")
+    e.add_argument("--extra-set", action="append", default=[], metavar="NAME=FILE.hdf5",
+                   help="like --replay-file, under the name NAME (repeatable)")
+    e.add_argument("--reevaluate", action="store_true",
+                   help="with extra sets: evaluate every checkpoint again even if RUN/results.json is up to date "
+                        "(by default only the extra sets are replayed then)")
     e.add_argument("--no-progress", action="store_true")
 
     pl = sub.add_parser("play", help="drive the human agent yourself in a local web page; the robot acts live",
@@ -148,7 +186,48 @@ def build_parser() -> argparse.ArgumentParser:
                                    "TensorBoard logs, evaluation tables, figures and videos (all embedded).")
     r.add_argument("--run", required=True, help="run directory")
     r.add_argument("--out", default=None, metavar="FILE.html", help="output file (default RUN/report.html)")
+    for sp in sub.choices.values():
+        sp.add_argument("--nondeterministic", action="store_true",
+                        help="allow nondeterministic GPU kernels (faster; by default XLA_FLAGS gets "
+                             "--xla_gpu_deterministic_ops=true, recorded in run_info.json)")
     return p
+
+
+def parse_field(name: str, value: str):
+    """A config field's value from text (``--set FIELD=VALUE``): booleans true/false/1/0/yes/no/on/off, integers
+    (also 1e6), floats, comma-separated seeds, none/null for optional files, else the text."""
+    import dataclasses
+
+    from .config import ConfigError, TrainConfig
+
+    fields = {f.name: f for f in dataclasses.fields(TrainConfig)}
+    if name not in fields:
+        raise ConfigError(f"--set: unknown config field {name!r}")
+    default = fields[name].default
+    kind = type(default)
+    v = value.strip()
+    try:
+        if kind is bool:
+            low = v.lower()
+            if low not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
+                raise ValueError
+            return low in ("true", "1", "yes", "on")
+        if kind is int:
+            x = float(v)
+            if x != int(x):
+                raise ValueError
+            return int(x)
+        if kind is float:
+            return float(v)
+        if kind is tuple:
+            return tuple(int(x) for x in v.split(",") if x.strip())
+        if default is None and v.lower() in ("none", "null", ""):
+            return None
+        return v
+    except ValueError:
+        want = {bool: "true or false", int: "an integer", float: "a number",
+                tuple: "comma-separated integers"}.get(kind, "text")
+        raise ConfigError(f"--set {name}={value}: expected {want}")
 
 
 def _config_from_args(a) -> "TrainConfig":  # noqa: F821
@@ -165,24 +244,21 @@ def _config_from_args(a) -> "TrainConfig":  # noqa: F821
             raise ConfigError(f"config file {path} is not valid JSON ({e.msg} at line {e.lineno})")
         fields.pop("_comment", None)
     for key in ("task", "method", "seeds", "total_steps", "num_envs", "unroll_length", "checkpoint_every",
-                "bc_steps", "demos", "heldout", "mix"):
+                "bc_steps", "demos", "heldout", "validation", "mix"):
         val = getattr(a, key)
         if val is not None:
             fields[key] = val
-    defaults = TrainConfig()
     for item in a.set:
         if "=" not in item:
             raise ConfigError(f"--set needs FIELD=VALUE, got {item!r}")
         k, v = item.split("=", 1)
-        if not hasattr(defaults, k):
-            raise ConfigError(f"--set: unknown config field {k!r}")
-        kind = type(getattr(defaults, k))
-        fields[k] = (v.lower() in ("1", "true", "yes")) if kind is bool else kind(v) if kind in (int, float) else v
+        fields[k] = parse_field(k.strip(), v)
     return TrainConfig.from_dict(fields).validate()
 
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    set_deterministic(not getattr(args, "nondeterministic", False))  # before JAX starts its backend
     from cogail_envs import UnknownTaskError
 
     from .checkpoint import CheckpointError
@@ -239,16 +315,23 @@ def _dispatch(a) -> int:
             del res
         return 0
     if a.command == "eval":
-        from .trainer import eval_run
+        from .config import ConfigError
+        from .trainer import eval_extra_sets, eval_run, replay_results_dir, results_current
 
-        eval_run(a.run, progress=not a.no_progress, every=a.every, replay_file=a.replay_file)
-        if a.replay_file:
-            from .trainer import replay_results_dir
-
-            out = replay_results_dir(a.run, a.replay_file)
-            print((out / "results.md").read_text() + f"(replay against {a.replay_file}; files in {out})")
+        sets = {Path(f).stem: f for f in a.replay_file}
+        for item in a.extra_set:
+            if "=" not in item:
+                raise ConfigError(f"--extra-set needs NAME=FILE, got {item!r}")
+            name, f = item.split("=", 1)
+            sets[name] = f
+        if sets and not a.reevaluate and results_current(a.run, a.every):
+            eval_extra_sets(a.run, sets)  # the checkpoints are chosen already: replay the extra sets only
         else:
-            print((Path(a.run) / "results.md").read_text())
+            eval_run(a.run, progress=not a.no_progress, every=a.every, extra_sets=sets)
+        print((Path(a.run) / "results.md").read_text())
+        for name, f in sets.items():
+            out = replay_results_dir(a.run, name)
+            print((out / "results.md").read_text() + f"(replay against {f}; files in {out})")
         return 0
     if a.command == "play":
         from .play import serve

@@ -1,4 +1,6 @@
-"""Shared, session-scoped fixtures: compile once, reuse everywhere (CPU, tiny sizes)."""
+"""Shared fixtures, built once per test process and reused everywhere (CPU, tiny sizes). `make test` runs the
+suite in two pytest-xdist worker processes; each builds the fixtures it needs, and both share one XLA
+compilation cache (below)."""
 from __future__ import annotations
 
 import atexit
@@ -7,12 +9,15 @@ import shutil
 import tempfile
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
-# One XLA compilation cache for the whole session, in a fresh directory (CI starts empty, nothing is kept):
+# One XLA compilation cache for the whole test run, in a fresh directory (CI starts empty, nothing is kept):
 # a program that several tests compile under separate jit objects (every trainer.build / make_train_fns /
-# train_run makes new ones) or in the subprocesses they start (the kill / resume test's four `cogail train`
-# runs, the 2-device runs) is compiled once and loaded from it afterwards. Set before jax is imported, in the
-# environment, so that subprocesses inherit it. The tests that check for recompilation count jit's own cache
-# entries or its "Compiling" log, which a hit here does not hide.
+# train_run makes new ones), in the other xdist worker, or in the subprocesses the tests start (the kill /
+# resume test's `cogail train` runs, the 2-device runs) is compiled once and loaded from it afterwards.
+# pytest's main process imports this file before it starts the xdist workers, so it makes the directory and
+# the workers and their subprocesses inherit it through the environment (it is set before jax is imported);
+# the main process removes it at exit. The tests that check for recompilation count jit's own cache entries
+# or its "Compiling" log, which a hit here does not hide. JAX writes an entry once and reads it whole; an
+# entry read while the other worker is still writing it fails to load and is compiled again (a warning).
 if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
     _CACHE = tempfile.mkdtemp(prefix="cogail-test-xla-cache-")
     os.environ["JAX_COMPILATION_CACHE_DIR"] = _CACHE

@@ -74,3 +74,16 @@ def test_dry_run_from_the_environment_runs_nothing(tmp_path):
     out = subprocess.run([sys.executable, str(SCRIPT), "--python", "PY"], env=env, check=True,
                          capture_output=True, text=True).stdout
     assert out.strip().splitlines()[-1] == f"PY -m pip install jax=={VERSION} jaxlib=={VERSION}"
+
+
+def test_train_start_lines_name_the_device_and_warn_on_paper_sized_mjx_runs_on_a_cpu():
+    from types import SimpleNamespace
+
+    from cogail_jax.devices import cpu_warning, describe_devices
+
+    assert describe_devices().startswith("device: cpu")
+    paper = SimpleNamespace(task="handover", total_steps=1_804_800, seeds=(300, 400, 500))
+    lines = cpu_warning(paper)
+    assert len(lines) == 2 and "about" in lines[0] and "make install" in lines[1]
+    assert cpu_warning(SimpleNamespace(task="fetchq", total_steps=6_016_000, seeds=(300,))) == []
+    assert cpu_warning(SimpleNamespace(task="seqmanip", total_steps=20_000, seeds=(300,))) == []

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import platform
 import subprocess
 import sys
@@ -91,13 +90,9 @@ def run_metadata() -> dict:
                                 cwd=Path(__file__).parent).stdout.strip() or None
     except Exception:  # noqa: BLE001
         commit = None
-    from .cli import deterministic_ops
-
     return {"versions": versions, "git_commit": commit, "python": sys.version.split()[0],
             "platform": platform.platform(), "devices": [str(d) for d in jax.devices()],
-            "time": time.strftime("%Y-%m-%d %H:%M:%S"),
-            # deterministic GPU kernels (on by default in the `cogail` CLI; off with --nondeterministic)
-            "xla_gpu_deterministic_ops": deterministic_ops(), "xla_flags": os.environ.get("XLA_FLAGS", "")}
+            "time": time.strftime("%Y-%m-%d %H:%M:%S")}
 
 
 def prepare_run_dir(cfg: TrainConfig, run_dir: Path, resume: bool) -> TrainConfig:
@@ -165,6 +160,8 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
     (tests use it to simulate an interrupted run)."""
     run_dir = Path(run_dir)
     cfg = prepare_run_dir(cfg, run_dir, resume)
+    from .devices import cpu_warning, describe_devices  # where it runs; a CPU warning for paper-sized MJX runs
+    print("\n".join([describe_devices(), *cpu_warning(cfg)]), flush=True)
     s = build(cfg, need_heldout=False)
     cfg = s.cfg
     mgr = ckpt.manager(run_dir)

@@ -1,8 +1,15 @@
-"""Orbax checkpoints of the whole (seed-stacked) TrainState; corrupt ones are detected and skipped."""
+"""Orbax checkpoints of the whole (seed-stacked) TrainState, portable across device layouts.
+
+A checkpoint is restored onto the devices of the process that loads it, whatever device kind or count saved it
+(a run trained on GPUs is evaluated, played and resumed on a CPU, on fewer devices or on more). A checkpoint that
+cannot be read on any layout (damaged or missing files) is reported as corrupt; one that holds another model
+(a different configuration) is reported as a mismatch, a user error, never as corruption."""
 from __future__ import annotations
 
+import json
 import logging
 import shutil
+import sys
 import time
 from pathlib import Path
 
@@ -15,12 +22,28 @@ logging.getLogger("absl").setLevel(logging.ERROR)
 
 
 class CheckpointError(RuntimeError):
-    pass
+    """A checkpoint cannot be restored."""
 
 
-def manager(run_dir: str | Path) -> ocp.CheckpointManager:
-    return ocp.CheckpointManager(
-        Path(run_dir).absolute() / "checkpoints",
+class CheckpointCorrupt(CheckpointError):
+    """Its files are damaged or missing: unreadable on any device layout."""
+
+
+class CheckpointMismatch(CheckpointError):
+    """Readable, but it holds another model (tree structure, shapes or dtypes) than this configuration builds."""
+
+
+class Manager(ocp.CheckpointManager):
+    """Orbax's manager, remembering why checkpoints failed to restore (for one clear message when none did)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.failures: dict[int, CheckpointError] = {}
+
+
+def manager(run_dir: str | Path) -> Manager:
+    return Manager(
+        Path(run_dir).absolute() / "checkpoints", item_handlers=ocp.StandardCheckpointHandler(),
         options=ocp.CheckpointManagerOptions(max_to_keep=None, create=True, enable_async_checkpointing=False),
     )
 
@@ -38,11 +61,67 @@ def _abstract_for_disk(abstract):
     return jax.tree.map(lambda a: jax.ShapeDtypeStruct((1,), a.dtype) if _empty(a) else a, abstract)
 
 
+# ------------------------------------------------------------------------------------------------ layouts
+def layout(tree=None) -> dict:
+    """The devices a state lives on (its arrays' devices; else this process's default device)."""
+    devs = set()
+    for x in jax.tree.leaves(tree) if tree is not None else ():
+        if isinstance(x, jax.Array) and not _empty(x):
+            devs |= set(x.sharding.device_set)
+    devs = sorted(devs, key=lambda d: d.id) or jax.devices()[:1]
+    return {"platform": devs[0].platform, "device_kind": devs[0].device_kind, "device_count": len(devs)}
+
+
+def describe(lay: dict | None) -> str:
+    """'2 devices (cpu)', '1 device (NVIDIA H100 80GB HBM3)'."""
+    if not lay:
+        return "an unrecorded layout"
+    n = int(lay.get("device_count", 1))
+    kind = lay.get("device_kind") or lay.get("platform") or "?"
+    return f"{n} device{'s' if n != 1 else ''} ({kind})"
+
+
+def saved_layout(mgr: ocp.CheckpointManager, step: int) -> dict | None:
+    """The layout checkpoint ``step`` was saved on (None for checkpoints that did not record it)."""
+    try:
+        return (mgr.metadata(int(step)).custom_metadata or {}).get("layout")
+    except Exception:  # noqa: BLE001 - metadata of an old or damaged checkpoint
+        return None
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def run_layout(run_dir: str | Path) -> dict | None:
+    """The layout a run trains on now (run_info.json's ``layout``), None if not recorded."""
+    return _read_json(Path(run_dir) / "run_info.json").get("layout")
+
+
+def record_layout(run_dir: str | Path, lay: dict, update: int) -> None:
+    """run_info.json: ``layout`` is the device layout the run trains on now; ``layouts`` lists each layout it
+    was trained on with the update it started from (each checkpoint's own is in its Orbax metadata)."""
+    path = Path(run_dir) / "run_info.json"
+    info = _read_json(path)
+    hist = info.get("layouts") or []
+    if not hist or {k: v for k, v in hist[-1].items() if k != "from_update"} != lay:
+        hist.append({"from_update": int(update), **lay})
+    info["layout"], info["layouts"] = lay, hist
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(info, indent=2))
+    tmp.replace(path)
+
+
+# ------------------------------------------------------------------------------------------- save/restore
 def save(mgr: ocp.CheckpointManager, step: int, state) -> None:
-    """Write atomically (Orbax writes to a temporary folder and renames it when complete)."""
+    """Write atomically (Orbax writes to a temporary folder and renames it when complete); the checkpoint's
+    metadata records the device layout it was saved on."""
     if step in mgr.all_steps():
         return
-    mgr.save(int(step), args=ocp.args.StandardSave(_fill_empty(state)))
+    mgr.save(int(step), args=ocp.args.StandardSave(_fill_empty(state)), custom_metadata={"layout": layout(state)})
     mgr.wait_until_finished()
 
 
@@ -50,12 +129,121 @@ def steps(mgr: ocp.CheckpointManager) -> list[int]:
     return sorted(mgr.all_steps())
 
 
-def restore(mgr: ocp.CheckpointManager, step: int, abstract_state):
+def _key(k) -> str:
+    for attr in ("name", "key", "idx"):
+        if hasattr(k, attr):
+            return str(getattr(k, attr))
+    return str(k)
+
+
+def _flat(tree, is_leaf=None) -> dict[str, object]:
+    leaves = jax.tree_util.tree_flatten_with_path(tree, is_leaf=is_leaf)[0]
+    return {"/".join(_key(k) for k in path): x for path, x in leaves}
+
+
+def _check_fits(mgr, step: int, disk_abstract) -> None:
+    """Compare the checkpoint's own metadata (tree, shapes, dtypes) with what this configuration builds.
+    Unreadable metadata: CheckpointCorrupt; another tree: CheckpointMismatch."""
+    where = f"checkpoint {step} in {mgr.directory}"
     try:
-        disk = mgr.restore(int(step), args=ocp.args.StandardRestore(_abstract_for_disk(abstract_state)))
-        return jax.tree.map(lambda d, a: jnp.zeros(a.shape, a.dtype) if _empty(a) else d, disk, abstract_state)
-    except Exception as e:  # noqa: BLE001 - any failure means this checkpoint is unusable
-        raise CheckpointError(f"checkpoint {step} in {mgr.directory} is unreadable ({type(e).__name__})") from e
+        meta = mgr.item_metadata(int(step))
+        meta = getattr(meta, "tree", meta)
+        saved = _flat(meta, is_leaf=lambda x: hasattr(x, "shape") and hasattr(x, "dtype"))
+        if not saved:
+            raise ValueError("no arrays listed")
+    except Exception as e:  # noqa: BLE001 - missing / damaged metadata files
+        raise CheckpointCorrupt(f"{where} is unreadable: its files are damaged or missing ({_short(e)})") from e
+    want = _flat(disk_abstract)
+    if set(saved) != set(want):
+        extra, missing = sorted(set(saved) - set(want)), sorted(set(want) - set(saved))
+        raise CheckpointMismatch(
+            f"{where} holds another model than this run's configuration builds "
+            f"({len(saved)} arrays saved, {len(want)} expected; e.g. "
+            f"{'saved only: ' + extra[0] if extra else 'missing: ' + missing[0]}): it was written by another "
+            f"configuration or version; use the config.json it was trained with or another --run")
+    for k, a in want.items():
+        m = saved[k]
+        if tuple(m.shape) != tuple(a.shape) or np.dtype(m.dtype) != np.dtype(a.dtype):
+            raise CheckpointMismatch(
+                f"{where} holds another model than this run's configuration builds ({k}: saved "
+                f"{tuple(m.shape)} {np.dtype(m.dtype)}, expected {tuple(a.shape)} {np.dtype(a.dtype)}): it was "
+                f"written by another configuration or version; use the config.json it was trained with or "
+                f"another --run")
+
+
+def _closed_loop_noise(unraisable) -> bool:
+    e = unraisable.exc_value
+    return isinstance(e, RuntimeError) and str(e) == "Event loop is closed"
+
+
+def _quiet_failed_reads() -> None:
+    """A failed Orbax restore leaves TensorStore reads pending; each reports, when it ends, a "RuntimeError:
+    Event loop is closed" traceback through ``sys.unraisablehook``. Drop exactly those (the failure itself is
+    reported once, as a CheckpointError); anything else goes to the previous hook."""
+    prev = sys.unraisablehook
+    if getattr(prev, "_cogail_quiet", False):
+        return
+
+    def hook(unraisable):
+        if not _closed_loop_noise(unraisable):
+            prev(unraisable)
+
+    hook._cogail_quiet = True
+    sys.unraisablehook = hook
+
+
+def _short(e: BaseException) -> str:
+    msg = " ".join(str(e).split())
+    return f"{type(e).__name__}: {msg[:160]}{'...' if len(msg) > 160 else ''}" if msg else type(e).__name__
+
+
+def _restore(mgr, step: int, abstract_state):
+    disk_abstract = _abstract_for_disk(abstract_state)
+    _check_fits(mgr, step, disk_abstract)
+    dev = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+    # Target shardings on this process's first device: Orbax then never uses the shardings stored at save time.
+    target = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=dev), disk_abstract)
+    try:
+        disk = mgr.restore(int(step), args=ocp.args.StandardRestore(target))
+    except Exception:  # noqa: BLE001 - retry without any device layout before calling the files damaged
+        _quiet_failed_reads()
+        try:
+            host = jax.tree.map(lambda a: np.zeros(a.shape, a.dtype), disk_abstract)
+            disk = jax.device_put(mgr.restore(int(step), args=ocp.args.StandardRestore(host)), dev)
+        except Exception as e:  # noqa: BLE001
+            raise CheckpointCorrupt(f"checkpoint {step} in {mgr.directory} is unreadable: its files are damaged "
+                                    f"or missing ({_short(e)})") from e
+    return jax.tree.map(lambda d, a: jnp.zeros(a.shape, a.dtype, device=dev) if _empty(a) else d,
+                        disk, abstract_state)
+
+
+def restore(mgr: ocp.CheckpointManager, step: int, abstract_state):
+    """Restore checkpoint ``step`` onto this process's first device, whatever layout saved it (values bitwise
+    as saved; ``trainer.place_on_devices`` spreads them over several). Raises CheckpointCorrupt (damaged or
+    missing files) or CheckpointMismatch (another model)."""
+    try:
+        return _restore(mgr, step, abstract_state)
+    except CheckpointError as e:
+        if hasattr(mgr, "failures"):
+            mgr.failures[int(step)] = e
+        raise
+
+
+def nothing_restored(mgr: ocp.CheckpointManager, run_dir: str | Path) -> CheckpointError:
+    """The error for a run none of whose checkpoints restored: one sentence naming the run and the reasons."""
+    failures = getattr(mgr, "failures", {})
+    bad = sorted(s for s, e in failures.items() if isinstance(e, CheckpointCorrupt))
+    other = sorted(s for s, e in failures.items() if isinstance(e, CheckpointMismatch))
+    why = []
+    if bad:
+        why.append(f"checkpoint{'s' if len(bad) > 1 else ''} {', '.join(map(str, bad))} "
+                   f"{'are' if len(bad) > 1 else 'is'} damaged (files missing or unreadable)")
+    if other:
+        why.append(f"checkpoint{'s' if len(other) > 1 else ''} {', '.join(map(str, other))} "
+                   f"hold{'' if len(other) > 1 else 's'} another model than its config.json builds")
+    reason = " and ".join(why) or "it has no checkpoints"
+    return CheckpointError(f"no checkpoint of {Path(run_dir)} can be restored: {reason}; retrain the run "
+                           f"(or pass another --run)")
 
 
 def quarantine(mgr: ocp.CheckpointManager, step: int) -> Path:
@@ -70,12 +258,13 @@ def quarantine(mgr: ocp.CheckpointManager, step: int) -> Path:
 
 
 def restore_latest_valid(mgr: ocp.CheckpointManager, abstract_state, log=print):
-    """Restore the newest readable checkpoint. Unreadable ones are reported and moved to
-    ``corrupt_checkpoints/``. Returns (step, state) or (None, None)."""
+    """Restore the newest readable checkpoint onto this process's first device. Damaged ones (unreadable on
+    any layout) are reported and moved to ``corrupt_checkpoints/``; one that holds another model raises
+    CheckpointMismatch (a user error: nothing is moved). Returns (step, state) or (None, None)."""
     for step in reversed(steps(mgr)):
         try:
             return step, restore(mgr, step, abstract_state)
-        except CheckpointError as e:
+        except CheckpointCorrupt as e:
             dst = quarantine(mgr, step)
             log(f"warning: {e}; moved it to {dst} and trying the previous one")
     return None, None

@@ -138,8 +138,7 @@ def load_policy(run_dir: str | Path, cfg: TrainConfig, label: str, which: str = 
     try:
         state = ckpt.restore(mgr, step, jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert)))
     except ckpt.CheckpointError as e:
-        raise RunError(f"{e}: it does not fit the {cfg.task} networks of this version; pass another "
-                       f"--checkpoint or --run, or retrain the run")
+        raise RunError(f"{e}; pass another --checkpoint or --run, or retrain the run")
     one = lambda tree: jax.tree.map(lambda x: x[i], tree)  # noqa: E731
     _, robot_step = evaluate.make_robot_step(s.cfg, s.env, s.nets)
     policy = Policy(label, run_dir, cfg.method, int(cfg.seeds[i]), int(step), cfg.history, one(state.params),

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import platform
 import subprocess
 import sys
@@ -90,9 +91,13 @@ def run_metadata() -> dict:
                                 cwd=Path(__file__).parent).stdout.strip() or None
     except Exception:  # noqa: BLE001
         commit = None
+    from .cli import deterministic_ops
+
     return {"versions": versions, "git_commit": commit, "python": sys.version.split()[0],
             "platform": platform.platform(), "devices": [str(d) for d in jax.devices()],
-            "time": time.strftime("%Y-%m-%d %H:%M:%S")}
+            "time": time.strftime("%Y-%m-%d %H:%M:%S"),
+            # deterministic GPU kernels (on by default in the `cogail` CLI; off with --nondeterministic)
+            "xla_gpu_deterministic_ops": deterministic_ops(), "xla_flags": os.environ.get("XLA_FLAGS", "")}
 
 
 def prepare_run_dir(cfg: TrainConfig, run_dir: Path, resume: bool) -> TrainConfig:

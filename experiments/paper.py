@@ -2,20 +2,32 @@
 fetchq for the D1 / D2 mixtures), for every task x method (3 seeds each, one vmapped program per run).
 
     python experiments/paper.py --tasks fetchq --methods cogail,ma_gail --out results/paper [--mixes uniform,D1,D2]
+    python experiments/paper.py --out docs/results/paper --tables-only --readme README.md
 
-Each (task, method, mixture) trains with ``experiments/<task>_paper.json`` into ``<out>/runs/...`` (resuming a
-finished or interrupted run instead of starting again), evaluates every checkpoint, and the tables are written
-to ``<out>/table1_replay.md``, ``<out>/table2_interpolation.md``, ``<out>/fig3_strategies.{md,png}`` and
-``<out>/paper.json``.
+Each (task, method, mixture) trains with ``experiments/<task>_paper.json`` (plus ``--set``) into
+``<out>/runs/<task>-<method>-<mix>-<hash>``, where ``<hash>`` is a short hash of the fully resolved training
+config: a run is reused (resumed if interrupted) only if its config is the same, and any change (a ``--set``, a
+new default) trains a new run. Every checkpoint is evaluated (``cogail eval``'s protocol); ``<out>/paper.json``
+holds each run's results (keyed task/method/mixture, with the config hash). Every cell of the tables gives the
+checkpoint selected on the validation split reported on the test split, the paper's protocol (max over
+checkpoints of the mean over seeds, on test) and the paper's number: ``<out>/table1_replay.md``,
+``<out>/table2_interpolation.md``, ``<out>/fig3_strategies.{md,png}``. ``--readme FILE`` rewrites the block
+between ``<!-- results:begin -->`` and ``<!-- results:end -->`` in FILE with the same tables; ``--tables-only``
+trains nothing and only rewrites the tables (and the README block) from ``<out>/paper.json``.
+
+GPU execution is deterministic (XLA_FLAGS ``--xla_gpu_deterministic_ops=true``) unless ``--nondeterministic``.
 """
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
+import os
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
+BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 
 PAPER_REPLAY = {  # Table 1 of the paper (mean, std in %)
     "bc_single": {"fetchq": (21.1, 1.9), "handover": (13.3, 3.3), "seqmanip": (15.0, 2.3)},
@@ -31,66 +43,162 @@ PAPER_INTERP = {  # Table 2 of the paper
     "diayn": {"fetchq": (80.2, 3.6), "handover": (86.2, 9.0), "seqmanip": (45.4, 7.9)},
     "cogail": {"fetchq": (82.1, 3.1), "handover": (81.2, 3.1), "seqmanip": (31.6, 2.5)},
 }
+MIX_SHARES = {"D1": (17, 17, 33, 33), "D2": (33, 33, 17, 17)}  # the demonstrations' strategy shares (%), Fig. 3
+KEEP = ("task", "method", "seeds", "checkpoints", "paper_protocol", "selected", "last", "per_seed_best",
+        "breakdowns_at", "strategy_distribution", "strategy_distribution_per_seed", "replay_by_strategy",
+        "interpolation_events", "curves", "splits", "extra_sets")  # what paper.json keeps of results.json
+
+
+def resolve_config(task, method, mix, seeds, extra: dict):
+    from cogail_jax.config import TrainConfig
+
+    fields = json.loads((ROOT / f"{task}_paper.json").read_text())
+    fields.pop("_comment", None)
+    return TrainConfig.from_dict({**fields, **extra, "task": task, "method": method, "mix": mix,
+                                  "seeds": tuple(seeds)}).validate()
+
+
+def config_hash(cfg) -> str:
+    """A short hash of the fully resolved training config (every field, defaults included)."""
+    return hashlib.sha256(json.dumps(json.loads(cfg.to_json()), sort_keys=True).encode()).hexdigest()[:10]
+
+
+def run_dir(out: Path, cfg) -> Path:
+    return out / "runs" / f"{cfg.task}-{cfg.method}-{cfg.mix}-{config_hash(cfg)}"
 
 
 def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1) -> dict:
     from cogail_jax import trainer
     from cogail_jax.config import TrainConfig
 
-    fields = json.loads((ROOT / f"{task}_paper.json").read_text())
-    fields.pop("_comment", None)
-    cfg = TrainConfig.from_dict({**fields, **extra, "task": task, "method": method, "mix": mix,
-                                 "seeds": tuple(seeds)}).validate()
-    run = out / "runs" / f"{task}-{method}-{mix}"
-    resume = (run / "config.json").exists()
+    cfg = resolve_config(task, method, mix, seeds, extra)
+    run = run_dir(out, cfg)
+    saved = run / "config.json"
+    resume = saved.exists() and TrainConfig.load(saved) == cfg  # the same resolved config: resume / reuse
+    if saved.exists() and not resume:
+        raise SystemExit(f"{run} holds a run of another config: remove it")
     trainer.train_run(cfg, run, resume=resume, progress=False)
-    return trainer.eval_run(run, progress=False, every=every)
+    res = trainer.eval_run(run, progress=False, every=every)
+    return {**{k: res[k] for k in KEEP if k in res}, "config_hash": config_hash(cfg), "run": str(run),
+            "eval_every": every}
 
 
-def fmt(d):
-    return f"{100 * d['mean']:.1f} +- {100 * d['std']:.1f}"
+# ----------------------------------------------------------------------------------------------- tables
+def fmt(d) -> str:
+    return f"{100 * d['mean']:.1f} +- {100 * d['std']:.1f}" if d else "-"
 
 
-def tables(results: dict, tasks, methods, out: Path) -> None:
-    rows1 = ["| method | " + " | ".join(f"{t} (ours) | {t} (paper)" for t in tasks) + " |",
-             "| --- |" + " --- | --- |" * len(tasks)]
-    rows2 = list(rows1[:2])
+def figures(res: dict | None, column: str) -> tuple[str, str]:
+    """(selected on validation, paper protocol) of one run for ``column`` replay / interpolation, formatted;
+    results made before the protocol (no paper_protocol key) give "-"."""
+    if not res or "paper_protocol" not in res:
+        return "-", "-"
+    sel = (res.get("selected") or {}).get(column)
+    return fmt(sel), fmt(res["paper_protocol"][column])
+
+
+def _paper(p) -> str:
+    return f"{p[0]} +- {p[1]}" if p else "-"
+
+
+def table(results: dict, tasks, methods, column: str, paper: dict) -> list[str]:
+    head = "| method | " + " | ".join(f"{t}: selected | {t}: paper protocol | {t}: paper" for t in tasks) + " |"
+    rows = [head, "| --- |" + " --- | --- | --- |" * len(tasks)]
     for m in methods:
-        r1, r2 = [m], [m]
+        cells = [m]
         for t in tasks:
-            res = results.get(f"{t}/{m}/uniform")
-            p1, p2 = PAPER_REPLAY.get(m, {}).get(t), PAPER_INTERP.get(m, {}).get(t)
-            r1 += [fmt(res["replay_success"]) if res else "-", f"{p1[0]} +- {p1[1]}" if p1 else "-"]
-            r2 += [fmt(res["interpolation_success"]) if res else "-", f"{p2[0]} +- {p2[1]}" if p2 else "-"]
-        rows1.append("| " + " | ".join(r1) + " |")
-        rows2.append("| " + " | ".join(r2) + " |")
-    (out / "table1_replay.md").write_text("# Table 1: replay success (%)\n\n" + "\n".join(rows1) + "\n")
-    (out / "table2_interpolation.md").write_text("# Table 2: interpolation success (%)\n\n" + "\n".join(rows2) + "\n")
-    fig3 = [k for k in results if k.startswith("fetchq/") and not k.endswith("/uniform")]
-    if fig3:
-        import matplotlib
+            cells += [*figures(results.get(f"{t}/{m}/uniform"), column), _paper(paper.get(m, {}).get(t))]
+        rows.append("| " + " | ".join(cells) + " |")
+    return rows
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
 
-        lines = ["# Fig. 3: strategies among successful fetchq interpolation rollouts (%)", "",
-                 "| method | mixture | s1 | s2 | s3 | s4 |", "| --- | --- | --- | --- | --- | --- |"]
-        mixes = sorted({k.split("/")[2] for k in fig3})
-        fig, axes = plt.subplots(1, len(mixes), figsize=(5 * len(mixes), 3.5), squeeze=False)
-        for ax, mix in zip(axes[0], mixes):
-            ms = [m for m in methods if f"fetchq/{m}/{mix}" in results]
-            for j, m in enumerate(ms):
-                dist = list(results[f"fetchq/{m}/{mix}"]["strategy_distribution"].values())
-                lines.append(f"| {m} | {mix} | " + " | ".join(f"{100 * v:.0f}" for v in dist) + " |")
-                ax.bar([i + j * 0.8 / len(ms) for i in range(4)], [100 * v for v in dist], width=0.8 / len(ms), label=m)
-            ax.set_xticks(range(4), ["s1", "s2", "s3", "s4"])
-            ax.set_title(f"fetchq {mix}")
-            ax.set_ylabel("% of successful rollouts")
-            ax.legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(out / "fig3_strategies.png", dpi=120)
-        (out / "fig3_strategies.md").write_text("\n".join(lines) + "\n")
+PROTOCOL_NOTE = ("Success rates in %, mean +- std over seeds, on the test split. *selected*: the checkpoint with "
+                 "the best mean validation replay success, reported on test (nothing chosen on test). *paper "
+                 "protocol*: as the paper reports, the checkpoint with the best mean over seeds on test, per column. "
+                 "*paper*: the paper's figure.")
+
+
+def fig3_rows(results: dict, methods) -> list[str]:
+    keys = [k for k in results if k.startswith("fetchq/") and not k.endswith("/uniform")]
+    mixes = sorted({k.split("/")[2] for k in keys})
+    lines = ["| method | mixture | strategy shares at the selected checkpoint (s1 / s2 / s3 / s4) | at the "
+             "paper-protocol interpolation checkpoint | demonstrations |", "| --- | --- | --- | --- | --- |"]
+    for mix in mixes:
+        for m in methods:
+            res = results.get(f"fetchq/{m}/{mix}")
+            if not res:
+                continue
+            sel = " / ".join(f"{100 * v:.0f}" for v in res["strategy_distribution"].values())
+            pp = (res.get("paper_protocol") or {}).get("interpolation", {}).get("strategy_distribution")
+            pp = " / ".join(f"{100 * v:.0f}" for v in pp.values()) if pp else "-"
+            demo = " / ".join(map(str, MIX_SHARES.get(mix, ()))) or "-"
+            lines.append(f"| {m} | {mix} | {sel} | {pp} | {demo} |")
+    return lines if len(lines) > 2 else []
+
+
+def fig3_png(results: dict, methods, path: Path) -> bool:
+    keys = [k for k in results if k.startswith("fetchq/") and not k.endswith("/uniform")]
+    if not keys:
+        return False
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    mixes = sorted({k.split("/")[2] for k in keys})
+    fig, axes = plt.subplots(1, len(mixes), figsize=(5 * len(mixes), 3.5), squeeze=False)
+    for ax, mix in zip(axes[0], mixes):
+        ms = [m for m in methods if f"fetchq/{m}/{mix}" in results]
+        for j, m in enumerate(ms):
+            dist = list(results[f"fetchq/{m}/{mix}"]["strategy_distribution"].values())
+            ax.bar([i + j * 0.8 / len(ms) for i in range(len(dist))], [100 * v for v in dist], width=0.8 / len(ms),
+                   label=m)
+        if mix in MIX_SHARES:
+            ax.plot(range(4), MIX_SHARES[mix], "k_", ms=20, mew=2, label="demonstrations")
+        ax.set_xticks(range(4), ["s1", "s2", "s3", "s4"])
+        ax.set_title(f"fetchq {mix} (selected checkpoint)")
+        ax.set_ylabel("% of successful rollouts")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return True
+
+
+def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None) -> None:
+    t1 = table(results, tasks, methods, "replay", PAPER_REPLAY)
+    t2 = table(results, tasks, methods, "interpolation", PAPER_INTERP)
+    f3 = fig3_rows(results, methods)
+    (out / "table1_replay.md").write_text("# Table 1: replay success (%)\n\n" + PROTOCOL_NOTE + "\n\n"
+                                          + "\n".join(t1) + "\n")
+    (out / "table2_interpolation.md").write_text("# Table 2: interpolation success (%)\n\n" + PROTOCOL_NOTE
+                                                 + "\n\n" + "\n".join(t2) + "\n")
+    has_png = fig3_png(results, methods, out / "fig3_strategies.png")
+    if f3:
+        (out / "fig3_strategies.md").write_text(
+            "# Fig. 3: strategies among successful fetchq interpolation rollouts (%)\n\n" + "\n".join(f3) + "\n")
     (out / "paper.json").write_text(json.dumps(results, indent=2))
+    if readme is not None:
+        block = ["Table 1, replay success (%):", "", *t1, "", "Table 2, interpolation success (%):", "", *t2, "",
+                 PROTOCOL_NOTE]
+        if f3:
+            block += ["", "Fig. 3, strategies among successful fetchq interpolation rollouts (%; the paper gives a "
+                      "plot, no numbers):", "", *f3]
+            if has_png:
+                rel = os.path.relpath(out / "fig3_strategies.png", readme.resolve().parent)
+                block += ["", f"![Fig. 3: strategy shares on D1 and D2]({Path(rel).as_posix()})"]
+        write_readme_block(readme, "\n".join(block))
+
+
+def write_readme_block(readme: Path, text: str) -> None:
+    """Replace what lies between the results markers of ``readme`` with ``text`` (the markers stay)."""
+    doc = readme.read_text()
+    if doc.count(BEGIN) != 1 or doc.count(END) != 1 or doc.index(BEGIN) > doc.index(END):
+        raise SystemExit(f"{readme} needs one {BEGIN} ... {END} block")
+    head, rest = doc.split(BEGIN)
+    _, tail = rest.split(END)
+    readme.write_text(f"{head}{BEGIN}\n<!-- generated by experiments/paper.py --tables-only; do not edit -->\n"
+                      f"{text}\n{END}{tail}")
 
 
 ORDER = ("bc_single", "bc_gail", "ma_gail", "ma_infogail", "diayn", "cogail")
@@ -104,53 +212,76 @@ def table_axes(results: dict, tasks, methods):
     return ts, ms
 
 
+def parse_sets(items) -> dict:
+    from cogail_jax.cli import parse_field
+
+    extra = {}
+    for item in items:
+        if "=" not in item:
+            raise SystemExit(f"--set needs FIELD=VALUE, got {item!r}")
+        k, v = item.split("=", 1)
+        extra[k.strip()] = parse_field(k.strip(), v)
+    return extra
+
+
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                epilog="the README block: --readme FILE rewrites the lines between "
+                                       f"{BEGIN} and {END}")
     p.add_argument("--tasks", default="fetchq")
     p.add_argument("--methods", default="cogail,ma_infogail,ma_gail,bc_gail,bc_single,diayn")
     p.add_argument("--mixes", default="uniform", help="fetchq mixtures (D1, D2 give Fig. 3)")
     p.add_argument("--seeds", default="300,400,500")
     p.add_argument("--out", default="results/paper")
-    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="override config fields")
+    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="override config fields (parsed as `cogail train --set`; part of the config hash)")
     p.add_argument("--eval-every", type=int, default=1, help="evaluate every k-th checkpoint (default: all)")
-    p.add_argument("--force", action="store_true", help="redo runs already in <out>/paper.json")
+    p.add_argument("--force", action="store_true", help="evaluate again runs already in <out>/paper.json")
     p.add_argument("--merge", nargs="+", default=[], metavar="DIR",
-                   help="train nothing: add the paper.json of each DIR (runs made side by side, e.g. by "
-                        "experiments/gpu_grid.sh) to --out's and rewrite the tables")
+                   help="train nothing: add the paper.json of each DIR (runs made side by side) to --out's and "
+                        "rewrite the tables")
+    p.add_argument("--tables-only", action="store_true",
+                   help="train nothing: rewrite the tables (and --readme's block) from <out>/paper.json")
+    p.add_argument("--readme", default=None, metavar="FILE",
+                   help=f"also write the tables into FILE between {BEGIN} and {END}")
+    p.add_argument("--nondeterministic", action="store_true", help="allow nondeterministic GPU kernels")
     a = p.parse_args(argv)
     sys.path.insert(0, str(ROOT.parent / "src"))
-    from cogail_jax.config import TrainConfig
+    from cogail_jax.cli import set_deterministic
 
-    extra = {}
-    for item in a.set:
-        k, v = item.split("=", 1)
-        kind = type(getattr(TrainConfig(), k))
-        extra[k] = kind(v)
+    set_deterministic(not a.nondeterministic)  # before JAX starts
+    extra = parse_sets(a.set)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
+    readme = Path(a.readme) if a.readme else None
     tasks, methods = a.tasks.split(","), a.methods.split(",")
     seeds = [int(s) for s in a.seeds.split(",")]
     results = json.loads((out / "paper.json").read_text()) if (out / "paper.json").exists() else {}
-    if a.merge:
+    if a.merge or a.tables_only:
         for d in a.merge:
             if (Path(d) / "paper.json").is_file():
                 results.update(json.loads((Path(d) / "paper.json").read_text()))
-        tables(results, *table_axes(results, [], []), out)
+        tables(results, *table_axes(results, [], []), out, readme)
         tasks = []
     for t in tasks:
         for m in methods:
             for mix in (a.mixes.split(",") if t == "fetchq" else ["uniform"]):
-                if f"{t}/{m}/{mix}" in results and not a.force:
-                    print(f"{t:9} {m:12} {mix:8} already in {out / 'paper.json'} (--force to redo)", flush=True)
+                key = f"{t}/{m}/{mix}"
+                h = config_hash(resolve_config(t, m, mix, seeds, extra))
+                old = results.get(key) or {}
+                if old.get("config_hash") == h and old.get("eval_every") == a.eval_every and not a.force:
+                    print(f"{t:9} {m:12} {mix:8} already in {out / 'paper.json'} (same config {h}; --force to "
+                          f"evaluate again)", flush=True)
                     continue
                 res = run_one(t, m, mix, seeds, out, extra, a.eval_every)
-                results[f"{t}/{m}/{mix}"] = {k: res[k] for k in ("replay_success", "interpolation_success",
-                                                                  "strategy_distribution", "best_checkpoint")}
-                print(f"{t:9} {m:12} {mix:8} replay {fmt(res['replay_success'])}  "
-                      f"interp {fmt(res['interpolation_success'])}", flush=True)
-                tables(results, *table_axes(results, tasks, methods), out)
-    print((out / "table1_replay.md").read_text())
-    print((out / "table2_interpolation.md").read_text())
+                results[key] = res
+                sel, pp = figures(res, "replay"), figures(res, "interpolation")
+                print(f"{t:9} {m:12} {mix:8} replay {sel[0]} (paper protocol {sel[1]})  interp {pp[0]} "
+                      f"(paper protocol {pp[1]})", flush=True)
+                tables(results, *table_axes(results, tasks, methods), out, readme)
+    if (out / "table1_replay.md").exists():
+        print((out / "table1_replay.md").read_text())
+        print((out / "table2_interpolation.md").read_text())
     return 0
 
 

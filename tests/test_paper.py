@@ -1,5 +1,6 @@
 """experiments/paper.py assembles the paper's tables from run results (no training here)."""
 import importlib.util
+import json
 from pathlib import Path
 
 import pytest
@@ -9,23 +10,59 @@ paper = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(paper)
 
 
-def _res(r, i, dist=(0.25, 0.25, 0.25, 0.25)):
-    return {"replay_success": {"mean": r, "std": 0.01, "per_seed": {}},
-            "interpolation_success": {"mean": i, "std": 0.02, "per_seed": {}},
-            "strategy_distribution": dict(zip("abcd", dist)), "best_checkpoint": {}}
+@pytest.fixture(autouse=True)
+def _keep_xla_flags(monkeypatch):  # paper.main sets XLA_FLAGS (deterministic GPU execution)
+    import os
+
+    monkeypatch.setenv("XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))
 
 
-def test_tables(tmp_path):
-    results = {"fetchq/cogail/uniform": _res(0.55, 0.1), "fetchq/ma_gail/uniform": _res(0.3, 0.2),
-               "fetchq/cogail/D1": _res(0.5, 0.1, (0.1, 0.1, 0.4, 0.4)), "fetchq/cogail/D2": _res(0.5, 0.1)}
+def _s(mean, std=0.01, ckpt=None):
+    return {"mean": mean, "std": std, "per_seed": {}, **({"checkpoint": ckpt} if ckpt is not None else {})}
+
+
+def _res(sel_r, pp_r, sel_i=0.1, pp_i=0.2, dist=(0.25, 0.25, 0.25, 0.25), pp_dist=(0.4, 0.2, 0.2, 0.2)):
+    return {"paper_protocol": {"replay": _s(pp_r, 0.02, 30),
+                               "interpolation": {**_s(pp_i, 0.02, 20), "strategy_distribution": dict(zip("abcd", pp_dist))}},
+            "selected": {"checkpoint": 40, "replay": _s(sel_r), "interpolation": _s(sel_i),
+                         "validation_replay": _s(0.5)},
+            "last": {"checkpoint": 40, "replay": _s(sel_r), "interpolation": _s(sel_i)},
+            "strategy_distribution": dict(zip("abcd", dist))}
+
+
+def test_tables_give_selected_paper_protocol_and_paper(tmp_path):
+    results = {"fetchq/cogail/uniform": _res(0.55, 0.6), "fetchq/ma_gail/uniform": _res(0.3, 0.35, 0.2, 0.25),
+               "fetchq/cogail/D1": _res(0.5, 0.5, dist=(0.1, 0.1, 0.4, 0.4)), "fetchq/cogail/D2": _res(0.5, 0.5),
+               "fetchq/diayn/uniform": {"replay_success": _s(0.9)}}  # made before the protocol: no figures
     paper.tables(results, ["fetchq"], ["cogail", "ma_gail", "diayn"], tmp_path)
     t1 = (tmp_path / "table1_replay.md").read_text()
-    assert "| cogail | 55.0 +- 1.0 | 53.3 +- 4.4 |" in t1
-    assert "| diayn | - | 44.4 +- 8.4 |" in t1
+    assert "| method | fetchq: selected | fetchq: paper protocol | fetchq: paper |" in t1
+    assert "| cogail | 55.0 +- 1.0 | 60.0 +- 2.0 | 53.3 +- 4.4 |" in t1
+    assert "| diayn | - | - | 44.4 +- 8.4 |" in t1
     t2 = (tmp_path / "table2_interpolation.md").read_text()
-    assert "| ma_gail | 20.0 +- 2.0 | 78.5 +- 7.2 |" in t2
-    assert "| cogail | D1 | 10 | 10 | 40 | 40 |" in (tmp_path / "fig3_strategies.md").read_text()
+    assert "| ma_gail | 20.0 +- 1.0 | 25.0 +- 2.0 | 78.5 +- 7.2 |" in t2
+    f3 = (tmp_path / "fig3_strategies.md").read_text()
+    assert "| cogail | D1 | 10 / 10 / 40 / 40 | 40 / 20 / 20 / 20 | 17 / 17 / 33 / 33 |" in f3
     assert (tmp_path / "fig3_strategies.png").exists() and (tmp_path / "paper.json").exists()
+
+
+def test_tables_only_rewrites_the_readme_block(tmp_path):
+    out = tmp_path / "docs" / "results" / "paper"
+    out.mkdir(parents=True)
+    (out / "paper.json").write_text(json.dumps({"fetchq/cogail/uniform": _res(0.55, 0.6),
+                                                "fetchq/cogail/D1": _res(0.5, 0.5)}))
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# x\n\nintro\n\n{paper.BEGIN}\nold table\n{paper.END}\n\nafter\n")
+    assert paper.main(["--out", str(out), "--tables-only", "--readme", str(readme)]) == 0
+    doc = readme.read_text()
+    assert doc.startswith("# x\n\nintro\n\n" + paper.BEGIN) and doc.endswith(paper.END + "\n\nafter\n")
+    assert "old table" not in doc and "| cogail | 55.0 +- 1.0 | 60.0 +- 2.0 | 53.3 +- 4.4 |" in doc
+    assert "](docs/results/paper/fig3_strategies.png)" in doc
+    assert paper.main(["--out", str(out), "--tables-only", "--readme", str(readme)]) == 0
+    assert readme.read_text() == doc  # idempotent
+    readme.write_text("no markers")
+    with pytest.raises(SystemExit, match="results:begin"):
+        paper.main(["--out", str(out), "--tables-only", "--readme", str(readme)])
 
 
 def test_paper_help():
@@ -35,13 +72,9 @@ def test_paper_help():
 
 
 def test_merge_adds_side_by_side_runs_to_the_tables(tmp_path):
-    """`paper.py --merge DIR...` (runs made side by side by experiments/gpu_grid.sh) adds each DIR's paper.json
-    to --out's, keeps what --out had, trains nothing, and skips entries that are not result folders."""
-    import json
-
     out, a, b = tmp_path / "out", tmp_path / "a", tmp_path / "b"
-    for d, res in ((out, {"fetchq/cogail/uniform": _res(0.55, 0.1)}), (a, {"handover/cogail/uniform": _res(0.4, 0.2)}),
-                   (b, {"handover/diayn/uniform": _res(0.46, 0.3)})):
+    for d, res in ((out, {"fetchq/cogail/uniform": _res(0.55, 0.6)}), (a, {"handover/cogail/uniform": _res(0.4, 0.45)}),
+                   (b, {"handover/diayn/uniform": _res(0.46, 0.5)})):
         d.mkdir()
         (d / "paper.json").write_text(json.dumps(res))
     (tmp_path / "a.log").write_text("not a folder")
@@ -49,28 +82,40 @@ def test_merge_adds_side_by_side_runs_to_the_tables(tmp_path):
     merged = json.loads((out / "paper.json").read_text())
     assert set(merged) == {"fetchq/cogail/uniform", "handover/cogail/uniform", "handover/diayn/uniform"}
     t1 = (out / "table1_replay.md").read_text()
-    assert "| cogail | 55.0 +- 1.0 | 53.3 +- 4.4 | 40.0 +- 1.0 | 43.9 +- 6.3 |" in t1
-    assert "| diayn | - | 44.4 +- 8.4 | 46.0 +- 1.0 | 22.7 +- 1.5 |" in t1
+    assert "| cogail | 55.0 +- 1.0 | 60.0 +- 2.0 | 53.3 +- 4.4 | 40.0 +- 1.0 | 45.0 +- 2.0 | 43.9 +- 6.3 |" in t1
+    assert "| diayn | - | - | 44.4 +- 8.4 | 46.0 +- 1.0 | 50.0 +- 2.0 | 22.7 +- 1.5 |" in t1
 
 
-def test_runs_already_in_paper_json_are_skipped(tmp_path, monkeypatch, capsys):
-    """A resumed grid call (experiments/gpu_grid.sh) only finishes what was cut: an entry already in
-    <out>/paper.json is not trained or evaluated again unless --force is given."""
-    import json
-
-    (tmp_path / "paper.json").write_text(json.dumps({"fetchq/cogail/uniform": _res(0.6, 0.5)}))
+def test_runs_are_cached_by_their_full_resolved_config(tmp_path, monkeypatch, capsys):
+    """An entry of paper.json is reused only if its run's resolved config (hash) is the same: any --set that
+    changes the config trains again (in a run directory of its own); one that gives the default value does not;
+    --set booleans parse (false is false)."""
     calls = []
 
-    def fake_run_one(task, method, mix, *a, **k):
-        calls.append((task, method, mix))
-        return {**_res(0.1, 0.1), "strategy_distribution": {}, "best_checkpoint": {}}
+    def fake_run_one(task, method, mix, seeds, out, extra, every=1):
+        calls.append((task, method, mix, dict(extra)))
+        cfg = paper.resolve_config(task, method, mix, seeds, extra)
+        return {**_res(0.1, 0.1), "config_hash": paper.config_hash(cfg), "eval_every": every,
+                "run": str(paper.run_dir(out, cfg))}
 
     monkeypatch.setattr(paper, "run_one", fake_run_one)
-    argv = ["--tasks", "fetchq", "--methods", "cogail,ma_gail", "--out", str(tmp_path)]
+    argv = ["--tasks", "fetchq", "--methods", "cogail", "--out", str(tmp_path)]
     paper.main(argv)
-    assert calls == [("fetchq", "ma_gail", "uniform")]
-    assert "already in" in capsys.readouterr().out
-    saved = json.loads((tmp_path / "paper.json").read_text())
-    assert saved["fetchq/cogail/uniform"]["replay_success"]["mean"] == 0.6
-    paper.main(argv + ["--force"])
-    assert calls[1:] == [("fetchq", "cogail", "uniform"), ("fetchq", "ma_gail", "uniform")]
+    paper.main(argv)  # same config: skipped
+    assert len(calls) == 1 and "already in" in capsys.readouterr().out
+    paper.main(argv + ["--set", "disc_instance_noise=false"])  # the default value: the same config
+    assert len(calls) == 1
+    paper.main(argv + ["--set", "disc_instance_noise=true"])
+    assert calls[-1][3] == {"disc_instance_noise": True} and len(calls) == 2
+    paper.main(argv + ["--set", "lr=1e-4", "--set", "disc_instance_noise=true"])
+    assert len(calls) == 3
+    paper.main(argv + ["--set", "lr=1e-4", "--set", "disc_instance_noise=true", "--force"])
+    assert len(calls) == 4
+    paper.main(argv + ["--seeds", "1,2"])  # seeds are part of the config
+    assert len(calls) == 5
+    base = paper.resolve_config("fetchq", "cogail", "uniform", [300, 400, 500], {})
+    other = paper.resolve_config("fetchq", "cogail", "uniform", [300, 400, 500], {"lr": 1e-4})
+    assert paper.run_dir(tmp_path, base) != paper.run_dir(tmp_path, other)
+    assert paper.run_dir(tmp_path, base).name.startswith("fetchq-cogail-uniform-")
+    assert paper.config_hash(base) == paper.config_hash(base.replace())
+    assert paper.parse_sets(["reward_norm=false"]) == {"reward_norm": False}

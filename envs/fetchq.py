@@ -34,7 +34,7 @@ carrier.
 """
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -55,10 +55,6 @@ BUTTON_R = 0.45
 PICK_R = 0.5
 DEST_R = 0.7
 START_BAND = np.array([[3.0, 0.8], [5.0, 1.8]], np.float32)
-
-# Scripted-team phases.
-GOTO_DOOR, GOTO_TREASURE, EXIT_DOOR, HOLD_BUTTON, GOTO_DEST, DONE = range(6)
-
 
 def _in_room(p: jax.Array, room: int) -> jax.Array:
     r = ROOMS[room]
@@ -88,15 +84,6 @@ def _move(p: jax.Array, delta: jax.Array, doors: jax.Array) -> jax.Array:
     xonly = jnp.clip(p + delta * jnp.array([1.0, 0.0]), lo, hi)
     yonly = jnp.clip(p + delta * jnp.array([0.0, 1.0]), lo, hi)
     return jnp.where(valid(full), full, jnp.where(valid(xonly), xonly, jnp.where(valid(yonly), yonly, p)))
-
-
-class TeamState(NamedTuple):
-    strategy: jax.Array  # (2,) strategy each agent follows (equal for a real team)
-    phase: jax.Array  # (2,) int32
-    delay: jax.Array  # (2,) int32 reaction-delay / pause countdown
-    prev: jax.Array  # (2, 2) previous action (smoothing)
-    speed: jax.Array  # (2,) per-episode speed factor
-    curve: jax.Array  # (2,) lateral bias of the current leg
 
 
 class FetchQuest(CollabEnv):
@@ -224,99 +211,17 @@ class FetchQuest(CollabEnv):
         sid = jnp.where(hr == 1, 0, 2) + jnp.where(first == 2, 1, 2)
         return jnp.where(ok, sid, 0).astype(jnp.int32)
 
-    # ------------------------------------------------------------------ scripted team
-    def team_init(self, rng: jax.Array, mix: jax.Array) -> tuple[TeamState, jax.Array]:
-        ks = jax.random.split(rng, 4)
-        strategy = jax.random.categorical(ks[0], jnp.log(jnp.asarray(mix) + 1e-12)) + 1
-        ts = TeamState(
-            strategy=jnp.stack([strategy, strategy]).astype(jnp.int32),
-            phase=jnp.zeros((2,), jnp.int32),
-            delay=jax.random.randint(ks[1], (2,), 0, 6),
-            prev=jnp.zeros((2, 2)),
-            speed=jax.random.uniform(ks[2], (2,), minval=0.75, maxval=1.0),
-            curve=jax.random.uniform(ks[3], (2,), minval=-0.5, maxval=0.5),
-        )
-        return ts, strategy.astype(jnp.int32)
+    # ------------------------------------------------------------------ scripted team (envs/teams/fetchq.py)
+    def team_init(self, rng: jax.Array, mix: jax.Array, variation=0):
+        """The scripted human-human team (:mod:`cogail_envs.teams.fetchq`); ``variation`` varies its human."""
+        from .teams import fetchq as team
 
-    @staticmethod
-    def _plan(strategy: jax.Array, agent: int) -> tuple[jax.Array, jax.Array, jax.Array]:
-        """(own room, room of the button this agent holds, whether this agent fetches first)."""
-        human_room = jnp.where(strategy <= 2, 0, 1)
-        robot_first = (strategy == 1) | (strategy == 3)
-        own = human_room if agent == 0 else 1 - human_room
-        fetch_first = ~robot_first if agent == 0 else robot_first
-        other = 1 - own
-        return own, other, fetch_first
+        return team.team_init(self, rng, mix, variation)
 
-    def _agent_target(self, ts: TeamState, ps: dict, i: int) -> tuple[jax.Array, jax.Array]:
-        """Target point of agent i and whether its current phase is complete."""
-        own, other, fetch_first = self._plan(ts.strategy[i], i)
-        phase = ts.phase[i]
-        pos = ps["pos"][i]
-        partner = ps["pos"][1 - i]
-        # phase program: fetcher-first: DOOR, TREASURE, EXIT, HOLD(other), DEST
-        #                helper-first:  HOLD(other), DOOR, TREASURE, EXIT, DEST
-        seq_first = jnp.array([GOTO_DOOR, GOTO_TREASURE, EXIT_DOOR, HOLD_BUTTON, GOTO_DEST, DONE])
-        seq_help = jnp.array([HOLD_BUTTON, GOTO_DOOR, GOTO_TREASURE, EXIT_DOOR, GOTO_DEST, DONE])
-        kind = jnp.where(fetch_first, seq_first[phase], seq_help[phase])
-        dests = jnp.asarray(DESTS)
-        dest = dests[jnp.argmin(jnp.linalg.norm(dests - pos, axis=-1))]
-        target = jnp.select(
-            [kind == GOTO_DOOR, kind == GOTO_TREASURE, kind == EXIT_DOOR, kind == HOLD_BUTTON],
-            [jnp.asarray(DOOR_SPOTS)[own], jnp.asarray(TREASURES)[own], jnp.asarray(DOOR_SPOTS)[own],
-             jnp.asarray(BUTTONS)[other]],
-            dest,
-        )
-        dist = jnp.linalg.norm(target - pos)
-        partner_in_other = jnp.where(other == 0, _in_room(partner, 0), _in_room(partner, 1))
-        complete = jnp.select(
-            [kind == GOTO_DOOR, kind == GOTO_TREASURE, kind == EXIT_DOOR, kind == HOLD_BUTTON],
-            [(dist < 0.3) & (ps["doors"][own] > 0.5), ps["carry"][i] >= 0, dist < 0.35,
-             (dist < BUTTON_R) & partner_in_other & (ps["carry"][1 - i] >= 0)],
-            False,
-        )
-        return target, complete
+    def team_act(self, ts, state: State, rng: jax.Array):
+        from .teams import fetchq as team
 
-    def team_act(self, ts: TeamState, state: State, rng: jax.Array) -> tuple[TeamState, jax.Array]:
-        ps = state.pipeline_state
-        k_noise, k_delay, k_pause, k_curve = jax.random.split(rng, 4)
-        actions, phases, delays, curves = [], [], [], []
-        for i in range(2):
-            target, complete = self._agent_target(ts, ps, i)
-            vec = target - ps["pos"][i]
-            dist = jnp.linalg.norm(vec)
-            direction = vec / (dist + 1e-6)
-            perp = jnp.array([-direction[1], direction[0]])
-            # curved legs: lateral bias that fades near the target
-            bend = ts.curve[i] * jnp.clip(dist / 3.0, 0.0, 1.0)
-            desired = direction + bend * perp
-            desired = desired / (jnp.max(jnp.abs(desired)) + 1e-6)
-            # minimum-jerk-like: slow down on arrival, low-pass the command
-            gain = jnp.clip(dist / (SPEED * 3.0), 0.0, 1.0) * ts.speed[i]
-            desired = desired * gain
-            waiting = ts.delay[i] > 0
-            desired = jnp.where(waiting, 0.0, desired)
-            a = ts.prev[i] + 0.45 * (desired - ts.prev[i])
-            a = a + 0.05 * jax.random.normal(jax.random.fold_in(k_noise, i), (2,))
-            a = jnp.clip(a, -1.0, 1.0)
-            advance = complete & ~waiting
-            new_phase = jnp.minimum(ts.phase[i] + advance.astype(jnp.int32), DONE)
-            # reaction delay after each completed phase; occasional short pauses
-            react = jax.random.randint(jax.random.fold_in(k_delay, i), (), 1, 7)
-            pause = jax.random.bernoulli(jax.random.fold_in(k_pause, i), 0.01)
-            plen = jax.random.randint(jax.random.fold_in(k_pause, 10 + i), (), 2, 6)
-            delay = jnp.where(advance, react, jnp.where(waiting, ts.delay[i] - 1, jnp.where(pause, plen, 0)))
-            curve = jnp.where(
-                advance, jax.random.uniform(jax.random.fold_in(k_curve, i), (), minval=-0.5, maxval=0.5), ts.curve[i]
-            )
-            actions.append(a)
-            phases.append(new_phase)
-            delays.append(delay)
-            curves.append(curve)
-        prev = jnp.stack(actions)
-        new_ts = ts._replace(phase=jnp.stack(phases), delay=jnp.stack(delays).astype(jnp.int32), prev=prev,
-                             curve=jnp.stack(curves))
-        return new_ts, prev.reshape(-1)
+        return team.team_act(self, ts, state, rng)
 
     # ------------------------------------------------------------------ rendering
     def render(self, state: State, size: int = 256) -> np.ndarray:
@@ -359,3 +264,12 @@ def render_frame(ps: dict[str, Any], size: int = 256) -> np.ndarray:
     disc(pos[0], 0.28, (240, 120, 40), (90, 40, 0))  # human: orange
     disc(pos[1], 0.28, (40, 160, 230), (0, 50, 90))  # robot: blue
     return np.asarray(img)
+
+
+def __getattr__(name: str):
+    """The scripted team's names (TeamState, the phase constants) moved to :mod:`cogail_envs.teams.fetchq`."""
+    from .teams import fetchq as team
+
+    if name in ("TeamState", "GOTO_DOOR", "GOTO_TREASURE", "EXIT_DOOR", "HOLD_BUTTON", "GOTO_DEST", "DONE"):
+        return getattr(team, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

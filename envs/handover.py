@@ -39,19 +39,15 @@ Rules:
   1 (left) if x < -``X_SPLIT``, 3 (right) if x > ``X_SPLIT``, else 2 (middle); 0 unless the episode
   succeeded through a handover.
 
-The scripted human-human team (:meth:`Handover.team_init` / :meth:`Handover.team_act`) draws the region
-from ``mix`` and then a continuous spot inside it (regions are separated by 5 cm gaps around the
-classification thresholds so every demo is labelled by its drawn region), a carry yaw, speeds,
-reaction delays, pauses and action noise; motions are proportional control with velocity and
-acceleration limits (smooth, minimum-jerk-like bell-shaped speed profiles).
+The scripted human-human team (:mod:`cogail_envs.teams.handover`, behind :meth:`Handover.team_init` /
+:meth:`Handover.team_act`) draws the region from ``mix`` and then a continuous spot inside it, a carry
+yaw, speeds, reaction delays, pauses and action noise (see that module, and its variations of the human).
 
 Rendering uses ``mujoco.Renderer`` (EGL offscreen works on headless CPU machines; if ``MUJOCO_GL`` was
 not set before ``mujoco`` was imported, an EGL context is created by hand); if no OpenGL is available it
 falls back to a matplotlib top + side projection of the geoms.
 """
 from __future__ import annotations
-
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -95,39 +91,6 @@ def handover_xml(iterations: int = mc.ITERATIONS, ls_iterations: int = mc.LS_ITE
     sensor = mc.gripper_sensors_xml(HUMAN, OBJ) + mc.gripper_sensors_xml(ROBOT, OBJ)
     return mc.scene_xml("handover", [HUMAN, ROBOT], worldbody=obj, contact=contact, sensor=sensor,
                         iterations=iterations, ls_iterations=ls_iterations, timestep=timestep)
-
-
-def _rotz(yaw: jax.Array) -> jax.Array:
-    c, s = jnp.cos(yaw), jnp.sin(yaw)
-    z, o = jnp.zeros_like(c), jnp.ones_like(c)
-    return jnp.array([[c, -s, z], [s, c, z], [z, z, o]])
-
-
-class TeamState(NamedTuple):
-    """Scripted human-human team (per episode; index 0 human, 1 robot where paired)."""
-
-    strategy: jax.Array   # (2,) int32 region 1..3 (same for both; the robot itself is reactive)
-    spot: jax.Array       # (3,) bar-centre target of the handover (world)
-    yaw: jax.Array        # () carry yaw of the human (rad)
-    vmax: jax.Array       # (2,) speed limits (action units)
-    amax: jax.Array       # (2,) acceleration limits (action units / step)
-    gain: jax.Array       # (2,) proportional gains
-    delay: jax.Array      # (2,) int32 start reaction delays
-    lift: jax.Array       # () lift height after grasping (m)
-    pause: jax.Array      # () int32 pause after lifting
-    release: jax.Array    # () int32 human reaction to the robot's grasp (own release)
-    retreat: jax.Array    # (2, 3) retreat offsets (world)
-    noise: jax.Array      # (2,) action noise std
-    phase: jax.Array      # (2,) int32
-    timer: jax.Array      # (2,) int32 steps spent in the current phase
-    vel: jax.Array        # (2, 3) previous translational command (world, action units)
-    anchor: jax.Array     # (2, 3) phase anchor point (world)
-
-
-# human phases
-H_WAIT, H_REACH, H_DESCEND, H_CLOSE, H_LIFT, H_CARRY, H_HOLD, H_RETREAT = range(8)
-# robot phases
-R_WAIT, R_STAGE, R_OVER, R_DESCEND, R_CLOSE, R_RETREAT = range(6)
 
 
 class Handover(mc.MjxSnapshots, CollabEnv):
@@ -261,153 +224,32 @@ class Handover(mc.MjxSnapshots, CollabEnv):
         ok = (metrics["success"] > 0) & (metrics["handover"] > 0)
         return jnp.where(ok, sid, 0).astype(jnp.int32)
 
-    # ------------------------------------------------------------------ scripted team
-    def team_init(self, rng: jax.Array, mix: jax.Array) -> tuple[TeamState, jax.Array]:
-        ks = jax.random.split(rng, 14)
-        u = lambda k, lo, hi, shape=(): jax.random.uniform(k, shape, minval=lo, maxval=hi)
-        strategy = jax.random.categorical(ks[0], jnp.log(jnp.asarray(mix, jnp.float32) + 1e-12)).astype(jnp.int32) + 1
-        lo, hi = jnp.asarray(REGIONS_X)[strategy - 1]
-        spot = jnp.stack([u(ks[1], lo, hi), u(ks[2], *SPOT_Y), u(ks[3], *SPOT_Z)])
-        ts = TeamState(
-            strategy=jnp.stack([strategy, strategy]),
-            spot=spot,
-            yaw=u(ks[4], -0.35, 0.35),
-            vmax=u(ks[5], 0.5, 0.9, (2,)),
-            amax=u(ks[6], 0.06, 0.12, (2,)),
-            gain=u(ks[7], 0.12, 0.22, (2,)),
-            delay=jax.random.randint(ks[8], (2,), jnp.array([2, 4]), jnp.array([15, 25])),
-            lift=u(ks[9], 0.04, 0.09),
-            pause=jax.random.randint(ks[10], (), 0, 12),
-            release=jax.random.randint(ks[11], (), 2, 7),
-            retreat=jnp.stack([
-                jnp.array([0.0, -0.12, 0.03]) + u(ks[12], -0.03, 0.03, (3,)),
-                jnp.array([0.0, 0.13, 0.03]) + u(ks[13], -0.03, 0.03, (3,)),
-            ]),
-            noise=u(jax.random.fold_in(rng, 99), 0.02, 0.08, (2,)),
-            phase=jnp.zeros((2,), jnp.int32),
-            timer=jnp.zeros((2,), jnp.int32),
-            vel=jnp.zeros((2, 3)),
-            anchor=jnp.zeros((2, 3)),
-        )
-        return ts, strategy
+    # ------------------------------------------------------------------ scripted team (envs/teams/handover.py)
+    def team_init(self, rng: jax.Array, mix: jax.Array, variation=0):
+        """The scripted human-human team (:mod:`cogail_envs.teams.handover`); ``variation`` varies its human."""
+        from .teams import handover as team
 
-    def _world_ctrl(self, d, g: mc.Gripper) -> jax.Array:
-        """The gripper's position target (world)."""
-        return jnp.asarray(g.base_pos) + jnp.asarray(g.base_mat) @ d.ctrl[g.act:g.act + 3]
+        return team.team_init(self, rng, mix, variation)
 
-    @staticmethod
-    def _move(p_cmd, target, vel, vmax, amax, gain):
-        """Velocity-limited, acceleration-limited proportional step (world frame, action units)."""
-        v_des = gain * (target - p_cmd) / mc.POS_SCALE
-        n = jnp.linalg.norm(v_des)
-        v_des = v_des * jnp.minimum(1.0, vmax / (n + 1e-9))
-        dv = v_des - vel
-        dn = jnp.linalg.norm(dv)
-        return vel + dv * jnp.minimum(1.0, amax / (dn + 1e-9))
+    def team_act(self, ts, state: State, rng: jax.Array):
+        from .teams import handover as team
 
-    def _rot_action(self, d, g: mc.Gripper, yaw_target, gain=0.25, vmax=0.9):
-        cur = d.ctrl[g.act + 3:g.act + 6]
-        tgt = jnp.stack([0.0, 0.0, yaw_target])
-        return jnp.clip(gain * (tgt - cur) / mc.ROT_SCALE, -vmax, vmax)
-
-    def team_act(self, ts: TeamState, state: State, rng: jax.Array) -> tuple[TeamState, jax.Array]:
-        d = state.pipeline_state
-        info = state.info
-        h, r = self.human, self.robot
-        p_obj = self._obj_pos(d)
-        R_obj = self._obj_mat(d)
-        obj_yaw = mc.wrap_angle(mc.yaw_of(R_obj), np.pi)  # bar is symmetric under 180 deg
-        grasp_h = p_obj + R_obj @ jnp.array([0.0, -GRASP_OFF, 0.0])
-        grasp_r = p_obj + R_obj @ jnp.array([0.0, GRASP_OFF, 0.0])
-        grasp_h = grasp_h.at[2].set(jnp.maximum(grasp_h[2], 0.018))
-        tcp_h, tcp_r = mc.tcp_pos(d, h), mc.tcp_pos(d, r)
-        yaw_h = d.ctrl[h.act + 5]
-        yaw_r = d.ctrl[r.act + 5]
-        h_grasp = mc.is_grasping(d, h, OBJ)
-        r_grasp = mc.is_grasping(d, r, OBJ)
-        h_open = mc.finger_gap(d, h) > 0.036
-        released = info["released"] > 0
-        near = lambda a, b, tol: jnp.linalg.norm(a - b) < tol
-
-        # ---------------- human
-        ph, th = ts.phase[0], ts.timer[0]
-        above_h = grasp_h + jnp.array([0.0, 0.0, 0.07])
-        carry_h = ts.spot + _rotz(ts.yaw) @ jnp.array([0.0, -GRASP_OFF, 0.0])
-        lift_h = ts.anchor[0] + jnp.array([0.0, 0.0, ts.lift])
-        retreat_h = ts.anchor[0] + ts.retreat[0]
-        hold_pos = ts.anchor[0]
-        target_h = jnp.select(
-            [ph == H_WAIT, ph == H_REACH, ph == H_DESCEND, ph == H_CLOSE, ph == H_LIFT, ph == H_CARRY, ph == H_HOLD],
-            [self._world_ctrl(d, h), above_h, grasp_h, hold_pos, lift_h, carry_h, carry_h], retreat_h)
-        yawt_h = jnp.select([ph <= H_CLOSE, ph <= H_HOLD], [obj_yaw, ts.yaw], yaw_h)
-        yawt_h = jnp.where(ph == H_WAIT, yaw_h, yawt_h)
-        own_release = (ph == H_HOLD) & r_grasp & (th >= ts.release)
-        grip_h = jnp.where((ph >= H_CLOSE) & (ph <= H_HOLD) & ~released & ~own_release, -1.0, 1.0)
-        adv_h = jnp.select(
-            [ph == H_WAIT, ph == H_REACH, ph == H_DESCEND, ph == H_CLOSE, ph == H_LIFT, ph == H_CARRY,
-             ph == H_HOLD],
-            [th >= ts.delay[0],
-             near(tcp_h, above_h, 0.012) & (jnp.abs(yaw_h - obj_yaw) < 0.05),
-             near(tcp_h, grasp_h, 0.006),
-             h_grasp & (th >= 5),
-             near(tcp_h, lift_h, 0.012) & (th >= ts.pause),
-             near(tcp_h, carry_h, 0.008) & (jnp.abs(yaw_h - ts.yaw) < 0.05),
-             (released | own_release) & h_open],
-            False)
-        regrasp_h = ((ph == H_CLOSE) & (th > 25)) | ((ph == H_LIFT) | (ph == H_CARRY)) & ~h_grasp & (p_obj[2] < 0.03)
-        new_ph = jnp.where(regrasp_h, H_REACH, ph + adv_h.astype(jnp.int32))
-        anchor_h = jnp.where(adv_h & ((ph == H_DESCEND) | (ph == H_CLOSE) | (ph == H_HOLD)), tcp_h, ts.anchor[0])
-        anchor_h = jnp.where(adv_h & (ph == H_DESCEND), grasp_h, anchor_h)
-
-        # ---------------- robot: stage behind the bar's far end and above it, move over it once the
-        # human holds still, descend, close, wait for the human to let go, retreat
-        pr, tr = ts.phase[1], ts.timer[1]
-        above_r = grasp_r + jnp.array([0.0, 0.0, 0.07])
-        stage_r = grasp_r + R_obj @ jnp.array([0.0, 0.09, 0.0]) + jnp.array([0.0, 0.0, 0.08])
-        retreat_r = ts.anchor[1] + ts.retreat[1]
-        target_r = jnp.select(
-            [pr == R_WAIT, pr == R_STAGE, pr == R_OVER, pr == R_DESCEND, pr == R_CLOSE],
-            [self._world_ctrl(d, r), stage_r, above_r, grasp_r, ts.anchor[1]], retreat_r)
-        yawt_r = jnp.where((pr == R_WAIT) | (pr == R_RETREAT), yaw_r, obj_yaw)
-        grip_r = jnp.where(pr >= R_CLOSE, -1.0, 1.0)
-        human_gone = (ph >= H_RETREAT) | (released & h_open)
-        adv_r = jnp.select(
-            [pr == R_WAIT, pr == R_STAGE, pr == R_OVER, pr == R_DESCEND, pr == R_CLOSE],
-            [(ph >= H_LIFT) & (tr >= ts.delay[1]),
-             (ph >= H_HOLD) & near(tcp_r, stage_r, 0.015),
-             near(tcp_r, above_r, 0.01) & (jnp.abs(yaw_r - obj_yaw) < 0.05),
-             near(tcp_r, grasp_r, 0.006),
-             r_grasp & human_gone & (tr >= 4)],
-            False)
-        regrasp_r = (pr == R_CLOSE) & (tr > 40) & ~r_grasp
-        new_pr = jnp.where(regrasp_r, R_STAGE, pr + adv_r.astype(jnp.int32))
-        anchor_r = jnp.where(adv_r & ((pr == R_DESCEND) | (pr == R_CLOSE)), tcp_r, ts.anchor[1])
-        # robot wait timer only starts once the human carries
-        tr_next = jnp.where((pr == R_WAIT) & (ph < H_LIFT), 0, tr + 1)
-
-        # ---------------- actions
-        k1, k2 = jax.random.split(rng)
-        vel_h = self._move(self._world_ctrl(d, h), target_h, ts.vel[0], ts.vmax[0], ts.amax[0], ts.gain[0])
-        vel_r = self._move(self._world_ctrl(d, r), target_r, ts.vel[1], ts.vmax[1], ts.amax[1], ts.gain[1])
-        vel_h = jnp.where(ph == H_WAIT, 0.0, vel_h)
-        vel_r = jnp.where(pr == R_WAIT, 0.0, vel_r)
-        noise = jax.random.normal(k1, (2, 6)) * ts.noise[:, None] * jnp.array([1.0, 1, 1, 0.3, 0.3, 0.3])
-        a_h = jnp.concatenate([jnp.asarray(h.base_mat.T) @ vel_h, self._rot_action(d, h, yawt_h)]) + noise[0]
-        a_r = jnp.concatenate([jnp.asarray(r.base_mat.T) @ vel_r,
-                               self._rot_action(d, r, mc.wrap_angle(yawt_r, np.pi))]) + noise[1]
-        action = jnp.clip(jnp.concatenate([a_h, grip_h[None], a_r, grip_r[None]]), -1.0, 1.0)
-
-        new_phase = jnp.stack([new_ph, new_pr]).astype(jnp.int32)
-        timer = jnp.where(new_phase != ts.phase, 0, jnp.stack([th + 1, tr_next])).astype(jnp.int32)
-        ts = ts._replace(phase=new_phase, timer=timer, vel=jnp.stack([vel_h, vel_r]),
-                         anchor=jnp.stack([anchor_h, anchor_r]))
-        return ts, action
+        return team.team_act(self, ts, state, rng)
 
     # ------------------------------------------------------------------ rendering
     def render(self, state: State, width: int = 320, height: int = 240, camera: str = "side") -> np.ndarray:
         """RGB frame (height, width, 3) uint8 of one unbatched state (cameras: side, front, top)."""
         d = mc.mjx.get_data(self.mj_model, jax.device_get(state.pipeline_state))
         return self._frames(d, width, height, camera)
+
+
+def __getattr__(name: str):
+    """The scripted team's names (TeamState, the H_* / R_* phases) moved to :mod:`cogail_envs.teams.handover`."""
+    from .teams import handover as team
+
+    if name == "TeamState" or name.startswith(("H_", "R_")):
+        return getattr(team, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 if __name__ == "__main__":  # print the scene, e.g. to open it in MuJoCo's viewer

@@ -1,7 +1,6 @@
 """`cogail report`: one self-contained HTML page from a (fake) run directory."""
 import base64
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -10,7 +9,18 @@ import pytest
 from cogail_jax import cli
 from cogail_jax.config import TrainConfig
 
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "cpu"  # a fixed, committed evaluation
+def _results(seeds) -> dict:
+    """An evaluation of 3 checkpoints (made-up success rates) through the reporting protocol."""
+    from cogail_jax import evaluate
+
+    rng = np.random.default_rng(0)
+    per_ckpt = {}
+    for c, step in enumerate((2, 4, 6)):
+        per_ckpt[step] = {"replay_success": (rng.random((len(seeds), 20)) < 0.2 * c + 0.3).astype(float),
+                          "val_replay_success": (rng.random((len(seeds), 30)) < 0.2 * c + 0.2).astype(float),
+                          "interp_success": (rng.random((len(seeds), 16)) < 0.5).astype(float),
+                          "interp_strategy": rng.integers(1, 5, (len(seeds), 16))}
+    return evaluate.summarize("fetchq", "cogail", seeds, per_ckpt, ("s1", "s2", "s3", "s4"), None)
 
 
 def _png(path: Path, color) -> bytes:
@@ -41,8 +51,9 @@ def _fake_run(root: Path, evaluated: bool = True, seeds=(1, 2)) -> Path:
             w.add_scalar("train/reward", -u, step)
         w.close()
     if evaluated:
-        for ext in ("json", "md"):
-            shutil.copy(RESULTS / f"fetchq-uniform-results.{ext}", run / f"results.{ext}")
+        from cogail_jax import evaluate
+
+        evaluate.save_results(run, _results(seeds))
         _png(run / "strategy_distribution.png", (200, 30, 30))
     return run
 
@@ -69,8 +80,12 @@ def test_report_of_an_evaluated_run(tmp_path, capsys):
     assert page.startswith("<!DOCTYPE html>") and page.rstrip().endswith("</html>")
     assert base64.b64encode(png).decode() in page  # the run's figure, embedded
     assert "data:image/gif;base64," + base64.b64encode(b"GIF89a-fake").decode() in page
-    # the evaluation table from results.md
-    assert "<th>metric</th>" in page and "<td>replay success</td>" in page and "55.0 +- 3.6" in page
+    # the evaluation table from results.md, led by the checkpoint selected on validation
+    res = json.loads((run / "results.json").read_text())
+    sel = res["selected"]["replay"]
+    assert "<th>checkpoint choice</th>" in page and "selected on validation" in page
+    assert f"{100 * sel['mean']:.1f} +- {100 * sel['std']:.1f}" in page and "paper protocol" in page
+    assert f"replay, selected on validation (ckpt {res['selected']['checkpoint']})" in page  # the summary card
     # learning curves (one per group) + the eval curve + the run's png: at least 5 embedded PNGs
     assert page.count("data:image/png;base64,") >= 5
     for title in ("Episode success", "Discriminator", "Losses", "Learning curves", "Configuration"):
@@ -113,7 +128,7 @@ def test_help(cmd, capsys):
 
 def test_summary_breaks_replay_and_interpolation_down_by_events():
     """results.json: replay success per held-out strategy and how far rollouts got (each event's share), at
-    the best checkpoints; categorical events (1 human / 2 robot) are split by value, continuous ones left out."""
+    the breakdown checkpoint; categorical events (1 human / 2 robot) are split by value, continuous ones left out."""
     from cogail_jax import evaluate
 
     hs = np.array([1, 1, 2, 2])
@@ -128,7 +143,8 @@ def test_summary_breaks_replay_and_interpolation_down_by_events():
              "replay_metrics": {"success": np.array([[1, 0, 1, 1]], float), "opened_by": np.array([[1, 0, 2, 2]], float)}},
     }
     res = evaluate.summarize("t", "cogail", (7,), ck, ("a", "b"), None, heldout_strategy=hs)
-    assert res["best_checkpoint"]["7"] == {"replay": 20, "interpolation": 20}
+    assert res["per_seed_best"]["replay"]["checkpoint"] == {"7": 20}
+    assert res["breakdowns_at"]["checkpoint"] == 20  # no validation results here: at the last checkpoint
     assert res["replay_by_strategy"] == {"a": 0.5, "b": 1.0}
     assert res["replay_events_by_strategy"]["a"] == {"opened_by=1": 0.5, "opened_by=2": 0.0, "success": 0.5}
     assert res["replay_events_by_strategy"]["b"] == {"opened_by=1": 0.0, "opened_by=2": 1.0, "success": 1.0}

@@ -165,24 +165,56 @@ def learning_curve_figures(scalars) -> list[tuple[str, bytes]]:
 
 def eval_curve_figure(res: dict, steps_per_update: int | None) -> bytes | None:
     curves, ckpts = res.get("curves") or {}, res.get("checkpoints") or []
-    names = [k for k in ("replay_success", "interpolation_success") if k in curves]
+    titles = {"replay_success": "test replay success", "validation_replay_success": "validation replay success",
+              "interpolation_success": "interpolation success"}
+    names = [k for k in titles if k in curves]
     if not names or not ckpts:
         return None
-    x = np.asarray(ckpts, float) * (steps_per_update or 1)
-    fig, axes = _grid(len(names), 2)
+    scale = steps_per_update or 1
+    x = np.asarray(ckpts, float) * scale
+    fig, axes = _grid(len(names), 3)
     seeds = [str(s) for s in res.get("seeds", [])]
+    sel = (res.get("selected") or {}).get("checkpoint")
+    pp = res.get("paper_protocol") or {}
     for ax, name in zip(axes, names):
         for i, ys in enumerate(curves[name]):
             if len(ys) == len(x):
                 ax.plot(x, 100 * np.asarray(ys, float), marker="o", ms=2.5, lw=1.0,
                         label=f"seed {seeds[i] if i < len(seeds) else i}")
-        ax.set_title(name.replace("_", " ") + " (%) per checkpoint", fontsize=10)
+        if len(curves[name]) and all(len(ys) == len(x) for ys in curves[name]):
+            ax.plot(x, 100 * np.mean(np.asarray(curves[name], float), 0), color="k", lw=1.8, label="mean")
+        if sel is not None:
+            ax.axvline(sel * scale, color="tab:green", ls="--", lw=1.0, label="selected on validation")
+        col = {"replay_success": "replay", "interpolation_success": "interpolation"}.get(name)
+        if col in pp:
+            ax.axvline(pp[col]["checkpoint"] * scale, color="tab:red", ls=":", lw=1.2, label="paper protocol")
+        ax.set_title(titles[name] + " (%) per checkpoint", fontsize=10)
         ax.set_xlabel("env steps (per seed)" if steps_per_update else "update", fontsize=8)
         ax.set_ylim(-3, 103)
         ax.grid(alpha=0.3)
         ax.tick_params(labelsize=7)
     axes[0].legend(fontsize=7)
     return _png(fig)
+
+
+def _headline(res: dict) -> list[tuple[str, str]]:
+    """(label, "mean +- std") of the reported figures: selected on validation and the paper protocol (results
+    made before the protocol: the per-seed best they reported)."""
+    f = lambda d: f"{100 * d['mean']:.1f} &plusmn; {100 * d.get('std', 0):.1f} %"  # noqa: E731
+    out = []
+    if isinstance(res.get("paper_protocol"), dict):
+        for col in ("replay", "interpolation"):
+            if isinstance(res.get("selected"), dict) and col in res["selected"]:
+                out.append((f"{col}, selected on validation (ckpt {res['selected']['checkpoint']})",
+                            f(res["selected"][col])))
+            pp = res["paper_protocol"].get(col)
+            if isinstance(pp, dict):
+                out.append((f"{col}, paper protocol (ckpt {pp.get('checkpoint')})", f(pp)))
+        return out
+    for k in ("replay_success", "interpolation_success"):
+        if isinstance(res.get(k), dict) and "mean" in res[k]:
+            out.append((k.replace("_", " ") + " (best ckpt per seed)", f(res[k])))
+    return out
 
 
 # ----------------------------------------------------------------------------------------------- HTML
@@ -339,10 +371,7 @@ def build_report(run_dir: str | os.PathLike, out: str | os.PathLike | None = Non
     if isinstance(speed, dict) and "env_steps_per_s" in speed:
         cards.append(("env steps / s (all seeds)", f"{speed['env_steps_per_s']:,.0f}"))
     if isinstance(res, dict):
-        for k in ("replay_success", "interpolation_success"):
-            if isinstance(res.get(k), dict) and "mean" in res[k]:
-                cards.append((k.replace("_", " ") + " (best ckpt)",
-                              f"{100 * res[k]['mean']:.1f} &plusmn; {100 * res[k].get('std', 0):.1f} %"))
+        cards += _headline(res)
     body.append('<div class="cards">' + "".join(f'<div class="card"><b>{v}</b>{html.escape(k)}</div>'
                                                 for k, v in cards) + "</div>")
 
@@ -355,18 +384,13 @@ def build_report(run_dir: str | os.PathLike, out: str | os.PathLike | None = Non
         if res_md:
             body.append(markdown_to_html(res_md))
         elif isinstance(res, dict):
-            rows = []
-            for k in ("replay_success", "interpolation_success"):
-                if isinstance(res.get(k), dict):
-                    per = ", ".join(f"{s}: {100 * v:.0f}" for s, v in res[k].get("per_seed", {}).items())
-                    rows.append((k.replace("_", " "), f"{100 * res[k]['mean']:.1f} &plusmn; "
-                                 f"{100 * res[k].get('std', 0):.1f}", html.escape(per)))
-            body.append(_table(rows, ("metric", "mean &plusmn; std (%)", "per seed")))
+            body.append(_table([(html.escape(k), v) for k, v in _headline(res)], ("figure", "mean &plusmn; std")))
         if isinstance(res, dict):
             png = eval_curve_figure(res, spu)
             if png:
                 body.append(f"<figure>{_img(png, 'image/png', 'evaluation per checkpoint')}<figcaption>Success of "
-                            f"every evaluated checkpoint, one line per seed.</figcaption></figure>")
+                            f"every evaluated checkpoint, one line per seed and their mean; dashed: the checkpoint "
+                            f"selected on validation, dotted: the paper protocol's.</figcaption></figure>")
 
     # --- learning curves
     body.append("<h2>Learning curves</h2>")

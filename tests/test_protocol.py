@@ -137,7 +137,8 @@ def test_default_splits_are_disjoint(fetchq, tmp_path, monkeypatch):
         data.default_demo_path("fetchq", "dev")
 
 
-def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, fetchq, tmp_path):
+def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, fetchq, tmp_path, monkeypatch,
+                                                          capsys):
     """A tiny run: every checkpoint on test and validation, the protocol's keys, and an extra set. The extra
     set is the test file itself, so its replay figures must equal the test replay figures at the same
     checkpoints (the replay-only program and the stacked test + validation program agree)."""
@@ -163,9 +164,16 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     assert list(saved)[:4] == ["task", "method", "seeds", "checkpoints"] and "extra_sets" in saved
     own = json.loads((run / "replay-again" / "results.json").read_text())
     assert own["replay_success"]["per_seed"] == sel["replay"]["per_seed"]
-    # adding a set later replays it at the same checkpoints only; the earlier set is kept
+    # adding a set later (`cogail eval --extra-set`, the run evaluated already) replays it at the same checkpoints
+    # only (trainer.eval_extra_sets); the earlier set is kept
+    from cogail_jax import cli
+
     assert trainer.results_current(run)
-    res2 = trainer.eval_extra_sets(run, {"val-again": val})
+    calls = []
+    monkeypatch.setattr(trainer, "eval_run", lambda *a, **k: calls.append(a))  # must not be needed
+    assert cli.main(["eval", "--run", str(run), "--extra-set", f"val-again={val}", "--no-progress"]) == 0
+    assert not calls and "replay against" in capsys.readouterr().out
+    res2 = json.loads((run / "results.json").read_text())
     assert set(res2["extra_sets"]) == {"again", "val-again"}
     assert res2["extra_sets"]["val-again"]["selected"]["per_seed"] == sel["validation_replay"]["per_seed"]
     assert "val-again" in (run / "results.md").read_text()

@@ -127,10 +127,12 @@ def agent_target(ts: TeamState, ps: dict, i: int) -> tuple[jax.Array, jax.Array]
     )
     dist = jnp.linalg.norm(target - pos)
     partner_in_other = jnp.where(other == 0, _in_room(partner, 0), _in_room(partner, 1))
+    # a helper is done once the partner has its treasure (in the room with it, or gone already: a human who
+    # paused on the button may see the partner only after it left the room)
     complete = jnp.select(
         [kind == GOTO_DOOR, kind == GOTO_TREASURE, kind == EXIT_DOOR, kind == HOLD_BUTTON],
         [(dist < 0.3) & (ps["doors"][own] > 0.5), ps["carry"][i] >= 0, dist < 0.35,
-         (dist < BUTTON_R) & partner_in_other & (ps["carry"][1 - i] >= 0)],
+         (dist < BUTTON_R) & ((partner_in_other & (ps["carry"][1 - i] >= 0)) | (ps["carry"][1 - i] == other))],
         False,
     )
     return target, complete

@@ -9,10 +9,11 @@ import jax
 
 MJX_TASKS = ("handover", "seqmanip")
 PAPER_BUDGET = 1_000_000  # env steps per seed from which a run counts as paper-sized
-# Co-GAIL training on the CPU, env steps/s per core summed over seeds, at the paper's layouts (handover 64 envs
-# x 94 steps, seqmanip 1000 x 10), measured with `cogail bench TASK --sizes N --unroll U --no-peer` on a 2-core
-# machine; BC pre-training and evaluation come on top.
-CPU_STEPS_PER_S_PER_CORE = {"handover": 400.0, "seqmanip": 300.0}
+# Co-GAIL's update on the CPU, env steps/s per core summed over seeds, at the paper's layouts (handover 64 envs x
+# 94 steps, seqmanip 1000 x 10), for an unloaded machine. `cogail bench handover --sizes 64 --unroll 94 --no-peer`
+# gave 1.1e3 on 2 cores shared with other jobs, when env-only ran at a third of its unloaded 5.5e3; seqmanip's
+# env step costs 1.5x handover's. BC pre-training and evaluation come on top.
+CPU_STEPS_PER_S_PER_CORE = {"handover": 1500.0, "seqmanip": 1000.0}
 
 
 def describe_devices() -> str:
@@ -32,7 +33,7 @@ def cpu_warning(cfg) -> list[str]:
     rate = CPU_STEPS_PER_S_PER_CORE[cfg.task] * (os.cpu_count() or 1)
     seconds = cfg.total_steps * len(cfg.seeds) / rate
     took = f"{seconds / 3600:.0f} h" if seconds >= 3600 * 1.5 else f"{seconds / 60:.0f} min"
-    return [f"warning: {cfg.task} ({len(cfg.seeds)} seeds x {cfg.total_steps:.3g} env steps) on this CPU: about {took} "
-            f"of training (about {os.cpu_count() or 1} cores; on one GPU: minutes)",
+    return [f"warning: {cfg.task} at {len(cfg.seeds)} seeds x {cfg.total_steps / 1e6:.1f}M env steps on this CPU "
+            f"({os.cpu_count() or 1} cores): about {took} of training, plus BC and evaluation (one GPU: minutes)",
             "warning: on an NVIDIA GPU machine, `make install` installs the CUDA build of JAX "
             "(`nvidia-smi` must work); check with `python -c 'import jax; print(jax.devices())'`"]

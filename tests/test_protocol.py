@@ -82,6 +82,15 @@ def test_paper_protocol_selected_last_and_per_seed_best():
     assert "**50.0 +- 0.0**" in md and "58.3 +- 11.8" in md and "inflated" in md
 
 
+def test_the_robot_to_show_is_the_selected_checkpoint_and_its_best_validation_seed():
+    res = evaluate.summarize("fetchq", "cogail", SEEDS, _per_ckpt(), ("a", "b", "c", "d"), None)
+    assert evaluate.selected_checkpoint(res) == (2, 40)  # validation at 40: 0.5, 0.75, 0.25
+    res = evaluate.summarize("fetchq", "cogail", SEEDS, _per_ckpt(validation=False), ("a", "b", "c", "d"), None)
+    assert evaluate.selected_checkpoint(res) == (2, 30)  # no validation: paper protocol, best test seed there
+    assert evaluate.selected_checkpoint({"best_checkpoint": {"5": {"replay": 7, "interpolation": 3}}}) == (5, 7)
+    assert evaluate.selected_checkpoint({}) == (None, None)
+
+
 def test_ties_go_to_the_later_checkpoint_whatever_the_rounding():
     thirds = np.array([[0.1 + 0.2, 0.3], [1 / 3, 1 / 3]])  # equal means, up to float rounding
     assert evaluate.argmax_seed_mean(thirds) == 1

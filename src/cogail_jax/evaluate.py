@@ -331,6 +331,27 @@ def summarize(task: str, method: str, seeds, per_ckpt: dict[int, dict], strategy
     return res
 
 
+def selected_checkpoint(res: dict) -> tuple[int | None, int | None]:
+    """(seed, checkpoint) of a results.json for showing one robot (``cogail play``, ``cogail video``): the
+    checkpoint selected on validation and, there, the seed with the best validation replay success (ties: the
+    first seed). Results without a selected checkpoint: the paper-protocol replay checkpoint and its best seed on
+    test; results made before the reporting protocol: the first seed's best replay checkpoint. (None, None) if
+    the results name no checkpoint."""
+    def best_seed(d):
+        per = (d or {}).get("per_seed") or {}
+        return int(max(per, key=lambda k: (per[k], -list(per).index(k)))) if per else None
+
+    if isinstance(res.get("selected"), dict):
+        return best_seed(res["selected"].get("validation_replay")), int(res["selected"]["checkpoint"])
+    if isinstance(res.get("paper_protocol"), dict):
+        pp = res["paper_protocol"]["replay"]
+        return best_seed(pp), int(pp["checkpoint"])
+    if isinstance(res.get("best_checkpoint"), dict) and res["best_checkpoint"]:
+        seed = next(iter(res["best_checkpoint"]))
+        return int(seed), int(res["best_checkpoint"][seed]["replay"])
+    return None, None
+
+
 def replay_by_strategy(success, strategy, strategy_names) -> dict[str, float]:
     """Replay success (mean over seeds) of the episodes of each strategy. ``success``: (seeds, episodes)."""
     success, strategy = np.asarray(success, np.float64), np.asarray(strategy)

@@ -156,14 +156,14 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     val = data.save_demos(tmp_path / "val.hdf5", fetchq, demos.generate(fetchq, 6, seed=2), seed=2)
     cfg = tiny_cfg.replace(seeds=(3, 5), validation=str(val))
     run = tmp_path / "run"
-    trainer.train_run(cfg, run, progress=False, stop_after=4)
+    trainer.train_run(cfg, run, progress=False)
     res = trainer.eval_run(run, progress=False, extra_sets={"again": demo_files[1]})
-    assert res["checkpoints"] == [2, 4]
+    assert res["checkpoints"] == [2, 4, 6]
     assert res["splits"]["validation"] == {"file": str(val), "episodes": 6}
     assert res["splits"]["test"]["episodes"] == 4
-    assert np.asarray(res["curves"]["validation_replay_success"]).shape == (2, 2)
+    assert np.asarray(res["curves"]["validation_replay_success"]).shape == (2, 3)
     sel, pp = res["selected"], res["paper_protocol"]
-    assert sel["checkpoint"] in (2, 4) and res["latent_map"]["checkpoint"] == sel["checkpoint"]
+    assert sel["checkpoint"] in (2, 4, 6) and res["latent_map"]["checkpoint"] == sel["checkpoint"]
     e = res["extra_sets"]["again"]
     assert e["episodes"] == 4 and e["selected"]["checkpoint"] == sel["checkpoint"]
     assert e["selected"]["per_seed"] == sel["replay"]["per_seed"]
@@ -186,3 +186,12 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     assert set(res2["extra_sets"]) == {"again", "val-again"}
     assert res2["extra_sets"]["val-again"]["selected"]["per_seed"] == sel["validation_replay"]["per_seed"]
     assert "val-again" in (run / "results.md").read_text()
+    monkeypatch.undo()
+    # checkpoints two at a time in one device program (vmapped over stacked parameters; the second group padded):
+    # the same figures as one checkpoint at a time
+    again = trainer.eval_run(run, progress=False, ckpt_batch=2)
+    for key in ("replay_success", "validation_replay_success", "interpolation_success"):
+        assert again["curves"][key] == res["curves"][key], key
+    assert again["selected"] == sel and again["paper_protocol"] == pp
+    np.testing.assert_allclose(again["latent_map"]["codes"], res["latent_map"]["codes"], rtol=1e-5, atol=1e-6)
+    assert set(again["extra_sets"]) == {"again", "val-again"}  # earlier extra sets are evaluated again

@@ -117,6 +117,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--reevaluate", action="store_true",
                    help="with extra sets: evaluate every checkpoint again even if RUN/results.json is up to date "
                         "(by default only the extra sets are replayed then)")
+    e.add_argument("--ckpt-batch", type=_positive, default=1, metavar="N",
+                   help="evaluate N checkpoints in one device program (vmapped; same results, more memory; "
+                        "default 1)")
     e.add_argument("--no-progress", action="store_true")
 
     pl = sub.add_parser("play", help="drive the human agent yourself in a local web page; the robot acts live",
@@ -327,7 +330,7 @@ def _dispatch(a) -> int:
         if sets and not a.reevaluate and results_current(a.run, a.every):
             eval_extra_sets(a.run, sets)  # the checkpoints are chosen already: replay the extra sets only
         else:
-            eval_run(a.run, progress=not a.no_progress, every=a.every, extra_sets=sets)
+            eval_run(a.run, progress=not a.no_progress, every=a.every, extra_sets=sets, ckpt_batch=a.ckpt_batch)
         print((Path(a.run) / "results.md").read_text())
         for name, f in sets.items():
             out = replay_results_dir(a.run, name)

@@ -112,6 +112,22 @@ def make_replay_fn(cfg: TrainConfig, env, nets):
 
 
 def make_eval_fns(cfg: TrainConfig, env, nets):
+    """Jitted ``seeds_eval(params, norm, episodes, rng)`` (params / norm with a leading seed axis) and the
+    interpolation codes: interpolation over the code grid, replay over ``episodes`` (``heldout_arrays`` without
+    ``strategy``; e.g. ``stack_sets`` of test and validation), latent codes of the episodes."""
+    evaluate, codes = _eval_fn(cfg, env, nets)
+    return jax.jit(jax.vmap(evaluate, in_axes=(0, 0, None, None))), codes
+
+
+def make_checkpoints_eval_fn(cfg: TrainConfig, env, nets):
+    """Like ``make_eval_fns``' ``seeds_eval``, over a leading checkpoint axis as well (params / norm stacked
+    (checkpoints, seeds, ...)): several checkpoints in one device program. The outputs gain the same leading
+    axis; each checkpoint's are those of ``seeds_eval`` on it."""
+    evaluate, _ = _eval_fn(cfg, env, nets)
+    return jax.jit(jax.vmap(jax.vmap(evaluate, in_axes=(0, 0, None, None)), in_axes=(0, 0, None, None)))
+
+
+def _eval_fn(cfg: TrainConfig, env, nets):
     actor = nets["actor"].apply
     K = cfg.history
     Tenv = env.max_episode_steps
@@ -145,7 +161,6 @@ def make_eval_fns(cfg: TrainConfig, env, nets):
 
     codes = interpolation_codes(cfg.eval_codes)
 
-    @jax.jit
     def evaluate(params, norm, heldout, rng):
         """For one seed: interpolation over the code grid, replay over held-out demos, latent codes."""
         keys = jax.random.split(rng, codes.shape[0])
@@ -157,8 +172,7 @@ def make_eval_fns(cfg: TrainConfig, env, nets):
         return {"interp_success": it["success"], "interp_strategy": it["strategy"], "interp_metrics": it["metrics"],
                 "replay_success": rp["success"], "replay_metrics": rp, "latent": lat}
 
-    seeds_eval = jax.jit(jax.vmap(evaluate, in_axes=(0, 0, None, None)))
-    return seeds_eval, codes
+    return evaluate, codes
 
 
 def heldout_arrays(demos) -> dict[str, np.ndarray]:

@@ -331,7 +331,7 @@ def eval_extra_sets(run_dir: str | Path, extra_sets: dict[str, str | Path]) -> d
 
 
 def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_file: str | Path | None = None,
-             extra_sets: dict[str, str | Path] | None = None) -> dict:
+             extra_sets: dict[str, str | Path] | None = None, ckpt_batch: int = 1) -> dict:
     """Evaluate every checkpoint of a run; write results.json / results.md and figures into the run dir.
 
     Every checkpoint and seed is evaluated on the test split (replay, interpolation, latent codes) and on the
@@ -342,7 +342,10 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     trajectories, one file per variation), each replayed at the selected checkpoint and at the paper-protocol
     replay checkpoint; results in results.json's ``extra_sets[name]`` and in RUN/replay-<name>/results.{json,md}.
     ``replay_file``: one more extra set, named after the file's stem. To add sets to a run evaluated already,
-    ``eval_extra_sets`` skips the evaluation of every checkpoint."""
+    ``eval_extra_sets`` skips the evaluation of every checkpoint.
+
+    ``ckpt_batch`` > 1: that many checkpoints are evaluated in one device program (their parameters stacked on a
+    new axis, vmapped; the last group padded), with the same results as one at a time; memory grows with it."""
     run_dir = Path(run_dir)
     if not (run_dir / "config.json").exists():
         raise RunError(f"{run_dir} is not a run directory (no config.json): pass the --run of a training run")
@@ -368,14 +371,31 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     per_ckpt = {}
     from tqdm import tqdm
 
-    for step in tqdm(steps, desc="eval", disable=not progress, file=sys.stdout):
-        try:
-            state = ckpt.restore(mgr, step, abstract)
-        except ckpt.CheckpointError as e:
-            print(f"warning: {e}; skipped", flush=True)
-            continue
-        out = jax.device_get(seeds_eval(state.params, state.norm, held, jax.random.PRNGKey(12345)))
-        per_ckpt[step] = _split_sets(out, part)
+    ckpt_batch = max(1, min(int(ckpt_batch), len(steps)))
+    many = evaluate.make_checkpoints_eval_fn(cfg, s.env, s.nets) if ckpt_batch > 1 else None
+    bar = tqdm(total=len(steps), desc="eval", disable=not progress, file=sys.stdout)
+    for i in range(0, len(steps), ckpt_batch):
+        group = []
+        for step in steps[i:i + ckpt_batch]:
+            try:
+                state = ckpt.restore(mgr, step, abstract)
+            except ckpt.CheckpointError as e:
+                print(f"warning: {e}; skipped", flush=True)
+                continue
+            group.append((step, state))
+        bar.update(len(steps[i:i + ckpt_batch]))
+        if many is None:
+            for step, state in group:
+                out = jax.device_get(seeds_eval(state.params, state.norm, held, jax.random.PRNGKey(12345)))
+                per_ckpt[step] = _split_sets(out, part)
+        elif group:
+            pad = [st for _, st in group] + [group[-1][1]] * (ckpt_batch - len(group))  # one compiled shape
+            stack = lambda *x: jax.numpy.stack(x)  # noqa: E731
+            out = jax.device_get(many(jax.tree.map(stack, *[st.params for st in pad]),
+                                      jax.tree.map(stack, *[st.norm for st in pad]), held, jax.random.PRNGKey(12345)))
+            for j, (step, _) in enumerate(group):
+                per_ckpt[step] = _split_sets(jax.tree.map(lambda x: x[j], out), part)
+    bar.close()
     res = evaluate.summarize(cfg.task, cfg.method, cfg.seeds, per_ckpt, s.env.strategy_names, codes,
                              heldout_strategy=s.heldout["strategy"])
     res["splits"] = {name: {"file": s.files[name], "episodes": int(part[name].stop - part[name].start)}

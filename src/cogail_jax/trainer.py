@@ -172,15 +172,25 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
     mgr = ckpt.manager(run_dir)
     abstract = jax.eval_shape(lambda: s.init(cfg.seeds, s.expert))
     state, start = None, 0
-    if resume:
+    if resume:  # restored onto this process's first device, whatever layout saved it; placed below
         step, state = ckpt.restore_latest_valid(mgr, abstract)
         if step is not None:
             start = step
             print(f"resuming {run_dir} from update {step}", flush=True)
-    if state is None:
+    fresh = state is None
+    if fresh:
         state = s.init(cfg.seeds, s.expert)
-        ckpt.save(mgr, 0, state)
     state, s.expert = place_on_devices(state, s.expert, devices, len(cfg.seeds))
+    here = ckpt.layout(state)
+    if fresh:
+        ckpt.save(mgr, 0, state)
+    else:
+        saved = ckpt.saved_layout(mgr, start) or ckpt.run_layout(run_dir)
+        if saved and (saved.get("device_count"), saved.get("device_kind")) != (here["device_count"],
+                                                                              here["device_kind"]):
+            print(f"restored {len(cfg.seeds)} seeds saved on {ckpt.describe(saved)} onto {ckpt.describe(here)}",
+                  flush=True)
+    ckpt.record_layout(run_dir, here, start)
     total = total_updates(cfg)
     upc = cfg.updates_per_call
     from tensorboardX import SummaryWriter
@@ -396,6 +406,8 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
             for j, (step, _) in enumerate(group):
                 per_ckpt[step] = _split_sets(jax.tree.map(lambda x: x[j], out), part)
     bar.close()
+    if not per_ckpt:
+        raise ckpt.nothing_restored(mgr, run_dir)
     res = evaluate.summarize(cfg.task, cfg.method, cfg.seeds, per_ckpt, s.env.strategy_names, codes,
                              heldout_strategy=s.heldout["strategy"])
     res["splits"] = {name: {"file": s.files[name], "episodes": int(part[name].stop - part[name].start)}

@@ -22,8 +22,8 @@ Variations of the human (:mod:`cogail_envs.teams`; the robot is unchanged):
   than, the point above the bar) and the carry goes via a waypoint 8-15 cm to the side of the straight path
   (and 3-8 cm up);
 * noise: action noise std x3 (0.06-0.24 instead of 0.02-0.08);
-* change_of_mind: the carry first heads for a spot of another region (15-40 steps, or until it gets within
-  2 cm), then for its own spot.
+* change_of_mind: the carry first heads for a spot of another region and holds the bar there (35-60 steps
+  in all), then carries it to its own spot.
 """
 from __future__ import annotations
 
@@ -45,7 +45,7 @@ R_WAIT, R_STAGE, R_OVER, R_DESCEND, R_CLOSE, R_RETREAT = range(6)
 PACE = (0.6, 1.4)
 NUM_PAUSES, PAUSE_START, PAUSE_LEN = 2, (15, 200), (20, 41)
 NOISE_FACTOR = 3.0
-DECOY_STEPS = (15, 41)
+DECOY_STEPS = (35, 61)
 
 
 def _rotz(yaw: jax.Array) -> jax.Array:
@@ -219,7 +219,7 @@ def _human(env, ts: TeamState, c: dict):
     wp_active = jnp.any(leg)
     target_h = jnp.where(decoying, decoy_tcp, jnp.where(wp_active, wps[k], target_h))
     adv_h = adv_h & ~decoying & ~wp_active
-    decoy_n = jnp.where(decoying, jnp.where(_near(tcp_h, decoy_tcp, 0.02), 0, ts.decoy_n - 1), ts.decoy_n)
+    decoy_n = jnp.where(decoying, ts.decoy_n - 1, ts.decoy_n)  # there (or on its way) for decoy_n steps
     wp_on = jnp.where(wp_active & _near(tcp_h, wps[k], 0.02), ts.wp_on.at[k].set(False), ts.wp_on)
 
     regrasp_h = ((ph == H_CLOSE) & (th > 25)) | ((ph == H_LIFT) | (ph == H_CARRY)) & ~c["h_grasp"] & (c["p_obj"][2] < 0.03)

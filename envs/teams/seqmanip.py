@@ -35,7 +35,8 @@ Variations of the human (:mod:`cogail_envs.teams`; the robot is unchanged):
   3-8 cm up;
 * noise: action noise std x3 (0.06-0.24 instead of 0.02-0.08);
 * change_of_mind: after lifting the bar, the human first carries it towards the other strategy's first
-  sub-goal (s1: the waiting point by the drawer; s2: the handover spot) for 20-45 steps, then to its own.
+  sub-goal (s1: the waiting point by the drawer; s2: the handover spot) and holds it there (35-60 steps
+  in all), then to its own.
 """
 from __future__ import annotations
 
@@ -74,7 +75,7 @@ NEXT_R = _next_table(18, {(1, R_WAIT): R_TO_HANDLE, (0, R_RELEASE): R_RETREAT, (
 PACE = (0.7, 1.4)
 NUM_PAUSES, PAUSE_START, PAUSE_LEN = 2, (15, 380), (20, 41)
 NOISE_FACTOR = 3.0
-DECOY_STEPS = (20, 46)
+DECOY_STEPS = (35, 61)
 
 
 def _rotz(yaw: jax.Array) -> jax.Array:
@@ -311,7 +312,7 @@ def _human_variation(ts: TeamState, c: dict, target, adv, g_h, spot_h):
     wp_active = jnp.any(leg)
     new_target = jnp.where(decoying, decoy_pt, jnp.where(wp_active, wps[k], target))
     adv = adv & ~decoying & ~wp_active
-    decoy_n = jnp.where(decoying, jnp.where(_near(c, 0, decoy_pt, 0.02), 0, ts.decoy_n - 1), ts.decoy_n)
+    decoy_n = jnp.where(decoying, ts.decoy_n - 1, ts.decoy_n)  # there (or on its way) for decoy_n steps
     wp_on = jnp.where(wp_active & _near(c, 0, wps[k], 0.02), ts.wp_on.at[k].set(False), ts.wp_on)
     return new_target, adv, wp_on, decoy_n
 

@@ -40,7 +40,7 @@ from cogail_envs.teams import VARIATIONS, variation_id
 
 from .data import DEFAULT_HELDOUT, _stored_version, data_dir, load_demos, save_demos
 
-ROBUST_VERSION = 1  # bump when the variations change (cached files are regenerated)
+ROBUST_VERSION = 2  # bump when the variations change (cached files are regenerated)
 SPLIT_SEED = {"test": 100, "validation": 200}
 PREFIX = "robust-"
 
@@ -292,6 +292,33 @@ def read_attrs(path) -> tuple[dict, np.ndarray]:
 
 
 # ------------------------------------------------------------------------------------------ blind robot
+def twin_episodes(env, varied_file, batch: int | None = None, resalt: int = 0) -> dict[str, np.ndarray]:
+    """The unvaried twins of a robustness file's episodes (same generator keys, variation 0: same initial state,
+    strategy and episode-level draws), padded to ``max_episode_steps``; ``resalt`` > 0 re-draws their per-step
+    randomness. Keys: obs, actions_human, actions_robot, length, success, executed, strategy, init."""
+    import h5py
+
+    from .demos import resolve_mix
+
+    attrs, gen = read_attrs(varied_file)
+    n = len(gen)
+    batch = batch or _batch_size(env, n, None)
+    w = resolve_mix(env, attrs.get("mixture", "uniform"))
+    f = rollout_fn(env, batch)
+    out: dict[str, list] = {}
+    for idx, pad in _batches(n, batch):
+        o = jax.device_get(f(_episode_keys(int(attrs["seed"]), gen[pad]), w, jnp.int32(0), jnp.int32(resalt)))
+        for k in ("obs", "actions_human", "actions_robot", "length", "success", "executed", "strategy", "init"):
+            out.setdefault(k, []).append(np.asarray(o[k])[: len(idx)])
+    out = {k: np.concatenate(v) for k, v in out.items()}
+    with h5py.File(varied_file, "r") as f5:
+        inits = np.stack([np.asarray(f5["data"][f"demo_{i}"]["init"][()]) for i in range(n)])
+        strategy = np.asarray([int(f5["data"][f"demo_{i}"].attrs["strategy"]) for i in range(n)])
+    if not np.allclose(out["init"], inits, atol=1e-5) or not np.array_equal(out["strategy"], strategy):
+        raise ValueError(f"{varied_file}: the regenerated twins do not match the file's episodes (other generator?)")
+    return out
+
+
 def blind_robot_success(env, varied_file, batch: int | None = None) -> dict:
     """A robot that ignores the human: the recorded robot actions of each varied episode's unvaried twin (same
     initial state, strategy and within-strategy draws) replayed open-loop against
@@ -303,25 +330,12 @@ def blind_robot_success(env, varied_file, batch: int | None = None) -> dict:
     Success counts only with the intended strategy. The scripted robot of the team, which follows the human,
     succeeds on 100 % of the varied episodes by construction (they were kept because it did).
     Returns ``{"variation", "episodes", "varied", "in_distribution", "by_strategy": {name: {...}}}``."""
-    from .demos import resolve_mix
-
-    attrs, gen = read_attrs(varied_file)
+    attrs, _ = read_attrs(varied_file)
     demos = load_demos(varied_file, env, require_init=True)
     n, T = demos.num, env.max_episode_steps
     batch = batch or _batch_size(env, n, None)
-    w = resolve_mix(env, attrs.get("mixture", "uniform"))
-    f = rollout_fn(env, batch)
-    twin, ref = {}, {}
-    for idx, pad in _batches(n, batch):
-        keys = _episode_keys(int(attrs["seed"]), gen[pad])
-        for dst, salt in ((twin, 0), (ref, 1)):
-            o = jax.device_get(f(keys, w, jnp.int32(0), jnp.int32(salt)))
-            for k in ("actions_human", "actions_robot", "length", "success", "executed", "strategy", "init"):
-                dst.setdefault(k, []).append(np.asarray(o[k])[: len(idx)])
-    twin = {k: np.concatenate(v) for k, v in twin.items()}
-    ref = {k: np.concatenate(v) for k, v in ref.items()}
-    if not np.allclose(twin["init"], demos.init, atol=1e-5) or not np.array_equal(twin["strategy"], demos.strategy):
-        raise ValueError(f"{varied_file}: the regenerated twins do not match the file's episodes (other generator?)")
+    twin = twin_episodes(env, varied_file, batch)
+    ref = twin_episodes(env, varied_file, batch, resalt=1)
     robot = _hold_pad(env, twin["actions_robot"], twin["length"])
     human_var = _hold_pad(env, _pad_time(demos.actions_human, T), demos.length)
     human_ref = _hold_pad(env, ref["actions_human"], ref["length"])

@@ -88,8 +88,8 @@ def read_run_config(run_dir: str | Path, task: str | None = None) -> TrainConfig
 
 
 def pick_checkpoint(run_dir: Path, cfg: TrainConfig, steps: list[int], which: str = "best") -> tuple[int, int]:
-    """(seed index, checkpoint step). ``which``: "best" (the best replay checkpoint of the best seed when the
-    run was evaluated, else the latest), "latest", or an update number."""
+    """(seed index, checkpoint step). ``which``: "best" (the checkpoint selected on validation, and its best seed
+    there, when the run was evaluated, else the latest), "latest", or an update number."""
     trained = [s for s in steps if s > 0] or steps
     if which not in ("best", "latest"):
         if not which.isdigit() or int(which) not in steps:
@@ -98,12 +98,9 @@ def pick_checkpoint(run_dir: Path, cfg: TrainConfig, steps: list[int], which: st
     res_path = run_dir / "results.json"
     if which == "best" and res_path.exists():
         try:
-            res = json.loads(res_path.read_text())
-            per_seed = res["replay_success"]["per_seed"]
-            seed = max(cfg.seeds, key=lambda s: per_seed.get(str(s), -1.0))
-            step = int(res["best_checkpoint"][str(seed)]["replay"])
+            seed, step = evaluate.selected_checkpoint(json.loads(res_path.read_text()))
             if step in steps:
-                return list(cfg.seeds).index(seed), step
+                return (list(cfg.seeds).index(seed) if seed in cfg.seeds else 0), step
         except (KeyError, ValueError, json.JSONDecodeError):
             pass
     return 0, trained[-1]

@@ -35,20 +35,21 @@ def _run_rollouts(run: Path, num: int, steps: int | None):
     s = trainer.build(cfg, need_heldout=True)
     env = s.env
     mgr = ckpt.manager(run)
-    best = {}
-    if (run / "results.json").exists():
-        best = json.loads((run / "results.json").read_text())["best_checkpoint"][str(cfg.seeds[0])]
     latest = max(ckpt.steps(mgr))
+    seed, chosen = None, None
+    if (run / "results.json").exists():  # the checkpoint selected on validation, and its best seed there
+        seed, chosen = evaluate.selected_checkpoint(json.loads((run / "results.json").read_text()))
+    si = list(cfg.seeds).index(seed) if seed in cfg.seeds else 0
     abstract = jax.eval_shape(lambda: s.init(cfg.seeds, s.expert))
 
     def load(step):
         state = ckpt.restore(mgr, step, abstract)
-        return jax.tree.map(lambda x: x[0], state.params), jax.tree.map(lambda x: x[0], state.norm)
+        return jax.tree.map(lambda x: x[si], state.params), jax.tree.map(lambda x: x[si], state.norm)
 
     T = min(env.max_episode_steps, steps or env.max_episode_steps)
     actor = s.nets["actor"].apply
     # interpolation: codes spread over the grid, the co-policy acts for both agents
-    params, norm = load(best.get("interpolation", latest))
+    params, norm = load(chosen if chosen in ckpt.steps(mgr) else latest)
     codes = evaluate.interpolation_codes(cfg.eval_codes)
     z = codes[np.linspace(0, len(codes) - 1, num).astype(int)]
     z = z if cfg.use_code else jnp.zeros_like(z)

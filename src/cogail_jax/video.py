@@ -35,6 +35,8 @@ def _run_rollouts(run: Path, num: int, steps: int | None):
     s = trainer.build(cfg, need_heldout=True)
     env = s.env
     mgr = ckpt.manager(run)
+    if not ckpt.steps(mgr):
+        raise trainer.RunError(f"{run} has no checkpoints yet: train it first (cogail train --run {run})")
     latest = max(ckpt.steps(mgr))
     seed, chosen = None, None
     if (run / "results.json").exists():  # the checkpoint selected on validation, and its best seed there

@@ -67,7 +67,7 @@ def run_dir(out: Path, cfg) -> Path:
     return out / "runs" / f"{cfg.task}-{cfg.method}-{cfg.mix}-{config_hash(cfg)}"
 
 
-def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1) -> dict:
+def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1, ckpt_batch: int = 1) -> dict:
     from cogail_jax import trainer
     from cogail_jax.config import TrainConfig
 
@@ -78,7 +78,7 @@ def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1) ->
     if saved.exists() and not resume:
         raise SystemExit(f"{run} holds a run of another config: remove it")
     trainer.train_run(cfg, run, resume=resume, progress=False)
-    res = trainer.eval_run(run, progress=False, every=every)
+    res = trainer.eval_run(run, progress=False, every=every, robustness=True, ckpt_batch=ckpt_batch)
     return {**{k: res[k] for k in KEEP if k in res}, "config_hash": config_hash(cfg), "run": str(run),
             "eval_every": every}
 
@@ -119,7 +119,7 @@ PROTOCOL_NOTE = ("Success rates in %, mean +- std over seeds, on the test split.
 
 
 def fig3_rows(results: dict, methods) -> list[str]:
-    keys = [k for k in results if k.startswith("fetchq/") and not k.endswith("/uniform")]
+    keys = [k for k in results if k.startswith("fetchq/") and k.count("/") == 2 and not k.endswith("/uniform")]
     mixes = sorted({k.split("/")[2] for k in keys})
     lines = ["| method | mixture | strategy shares at the selected checkpoint (s1 / s2 / s3 / s4) | at the "
              "paper-protocol interpolation checkpoint | demonstrations |", "| --- | --- | --- | --- | --- |"]
@@ -137,7 +137,7 @@ def fig3_rows(results: dict, methods) -> list[str]:
 
 
 def fig3_png(results: dict, methods, path: Path) -> bool:
-    keys = [k for k in results if k.startswith("fetchq/") and not k.endswith("/uniform")]
+    keys = [k for k in results if k.startswith("fetchq/") and k.count("/") == 2 and not k.endswith("/uniform")]
     if not keys:
         return False
     import matplotlib
@@ -165,10 +165,67 @@ def fig3_png(results: dict, methods, path: Path) -> bool:
     return True
 
 
+def _pct(d) -> str:
+    return f"{100 * d['mean']:.1f}" if d else "-"
+
+
+def robustness_rows(results: dict, tasks, methods) -> list[str]:
+    """Replay success against varied humans at the selected checkpoint, next to in-distribution replay there."""
+    var = []
+    for r in results.values():
+        var += [k for k in (r.get("extra_sets") or {}) if k.startswith("robust-") and k not in var]
+    if not var:
+        return []
+    lines = ["| task | method | in-distribution | " + " | ".join(v[len("robust-"):] for v in var)
+             + " | worst / in-distribution |", "| --- | --- | --- |" + " --- |" * (len(var) + 1)]
+    for t in tasks:
+        for m in methods:
+            r = results.get(f"{t}/{m}/uniform")
+            if not r or not r.get("selected") or m == "bc_single":
+                continue
+            ind = r["selected"]["replay"]
+            vs = [((r.get("extra_sets") or {}).get(v) or {}).get("selected") for v in var]
+            worst = min((x["mean"] for x in vs if x), default=None)
+            ratio = f"{worst / ind['mean']:.2f}" if worst is not None and ind["mean"] > 0 else "-"
+            lines.append(f"| {t} | {m} | {_pct(ind)} | " + " | ".join(_pct(x) for x in vs) + f" | {ratio} |")
+    return lines
+
+
+def stability_rows(results: dict) -> list[str]:
+    """Selected vs last checkpoint (replay and interpolation, test) for every run, variants included."""
+    lines = ["| run | replay: selected | replay: last | interpolation: selected | interpolation: last |",
+             "| --- | --- | --- | --- | --- |"]
+    for k in sorted(results):
+        r = results[k]
+        if not r.get("selected") or not r.get("last"):
+            continue
+        lines.append(f"| {k} | {fmt(r['selected']['replay'])} | {fmt(r['last']['replay'])} | "
+                     f"{fmt(r['selected']['interpolation'])} | {fmt(r['last']['interpolation'])} |")
+    return lines if len(lines) > 2 else []
+
+
+def variant_rows(results: dict) -> list[str]:
+    keys = sorted(k for k in results if k.count("/") >= 3)
+    if not keys:
+        return []
+    lines = ["| variant (task/method/mix/label) | replay: selected | replay: paper protocol | interpolation: selected "
+             "| interpolation: paper protocol |", "| --- | --- | --- | --- | --- |"]
+    for k in keys:
+        (rs, rp), (is_, ip) = figures(results[k], "replay"), figures(results[k], "interpolation")
+        lines.append(f"| {k} | {rs} | {rp} | {is_} | {ip} |")
+    return lines
+
+
 def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None) -> None:
     t1 = table(results, tasks, methods, "replay", PAPER_REPLAY)
     t2 = table(results, tasks, methods, "interpolation", PAPER_INTERP)
     f3 = fig3_rows(results, methods)
+    rob, stab, var = robustness_rows(results, tasks, methods), stability_rows(results), variant_rows(results)
+    for name, title, rows in (("robustness.md", "Replay against varied humans (%, selected checkpoint, test)", rob),
+                              ("stability.md", "Selected vs last checkpoint (%, test)", stab),
+                              ("variants.md", "Variants of the shipped settings (%, test)", var)):
+        if rows:
+            (out / name).write_text(f"# {title}\n\n" + "\n".join(rows) + "\n")
     (out / "table1_replay.md").write_text("# Table 1: replay success (%)\n\n" + PROTOCOL_NOTE + "\n\n"
                                           + "\n".join(t1) + "\n")
     (out / "table2_interpolation.md").write_text("# Table 2: interpolation success (%)\n\n" + PROTOCOL_NOTE
@@ -187,6 +244,13 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
             if has_png:
                 rel = os.path.relpath(out / "fig3_strategies.png", readme.resolve().parent)
                 block += ["", f"![Fig. 3: strategy shares on D1 and D2]({Path(rel).as_posix()})"]
+        if var:
+            block += ["", "Variants of the shipped settings (test, %):", "", *var]
+        if rob:
+            block += ["", "Replay against varied humans (selected checkpoint, test, %; the last column: the worst "
+                      "variation's success over in-distribution replay):", "", *rob]
+        if stab:
+            block += ["", "Selected vs last checkpoint (test, %):", "", *stab]
         write_readme_block(readme, "\n".join(block))
 
 
@@ -208,6 +272,7 @@ def table_axes(results: dict, tasks, methods):
     """Tasks and methods to tabulate: those asked for plus those already in paper.json (earlier calls)."""
     keys = [k.split("/") for k in results]
     ts = [t for t in ("fetchq", "handover", "seqmanip") if t in tasks or any(k[0] == t for k in keys)]
+    keys = [k for k in keys if len(k) == 3]  # variants (a 4th part, the label) are tabulated apart
     ms = [m for m in ORDER if m in methods or any(k[1] == m for k in keys)]
     return ts, ms
 
@@ -236,6 +301,11 @@ def main(argv=None) -> int:
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override config fields (parsed as `cogail train --set`; part of the config hash)")
     p.add_argument("--eval-every", type=int, default=1, help="evaluate every k-th checkpoint (default: all)")
+    p.add_argument("--ckpt-batch", type=int, default=1, metavar="N",
+                   help="evaluate N checkpoints in one device program (faster on a GPU; same results)")
+    p.add_argument("--label", default=None,
+                   help="a variant of the shipped settings (with --set): its results are keyed task/method/mix/LABEL "
+                        "and tabulated under 'Variants', not in Tables 1 and 2")
     p.add_argument("--force", action="store_true", help="evaluate again runs already in <out>/paper.json")
     p.add_argument("--merge", nargs="+", default=[], metavar="DIR",
                    help="train nothing: add the paper.json of each DIR (runs made side by side) to --out's and "
@@ -266,14 +336,14 @@ def main(argv=None) -> int:
     for t in tasks:
         for m in methods:
             for mix in (a.mixes.split(",") if t == "fetchq" else ["uniform"]):
-                key = f"{t}/{m}/{mix}"
+                key = f"{t}/{m}/{mix}" + (f"/{a.label}" if a.label else "")
                 h = config_hash(resolve_config(t, m, mix, seeds, extra))
                 old = results.get(key) or {}
                 if old.get("config_hash") == h and old.get("eval_every") == a.eval_every and not a.force:
                     print(f"{t:9} {m:12} {mix:8} already in {out / 'paper.json'} (same config {h}; --force to "
                           f"evaluate again)", flush=True)
                     continue
-                res = run_one(t, m, mix, seeds, out, extra, a.eval_every)
+                res = run_one(t, m, mix, seeds, out, extra, a.eval_every, a.ckpt_batch)
                 results[key] = res
                 sel, pp = figures(res, "replay"), figures(res, "interpolation")
                 print(f"{t:9} {m:12} {mix:8} replay {sel[0]} (paper protocol {sel[1]})  interp {pp[0]} "

@@ -96,6 +96,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--run", required=True, help="run directory")
     t.add_argument("--resume", action="store_true", help="continue the run in --run from its last valid checkpoint")
     t.add_argument("--eval", action="store_true", help="evaluate every checkpoint when training ends")
+    t.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
+                   help="with --eval: also replay against varied humans (pace, pauses, path, noise, a change of "
+                        "mind; cached in the data folder); results in results.json's extra_sets, RUN/robustness.png")
     t.add_argument("--devices", default=None,
                    help="shard the seed axis over N devices or 'all' (one program; seeds must split evenly)")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -112,6 +115,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="an extra test set (e.g. the trials `cogail play` recorded, an imported file): replayed at "
                         "the checkpoint selected on validation and at the paper-protocol replay checkpoint; results "
                         "in results.json's extra_sets and in RUN/replay-<file name>/ (repeatable)")
+    e.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
+                   help="also replay against varied humans (pace, pauses, path, noise, a change of mind; cached in "
+                        "the data folder): results.json's extra_sets robust-<variation>, RUN/robustness.png")
     e.add_argument("--extra-set", action="append", default=[], metavar="NAME=FILE.hdf5",
                    help="like --replay-file, under the name NAME (repeatable)")
     e.add_argument("--reevaluate", action="store_true",
@@ -313,7 +319,7 @@ def _dispatch(a) -> int:
         run = train_run(cfg, a.run, resume=a.resume, progress=not a.no_progress, devices=a.devices)
         print(f"trained: {run}")
         if a.eval:
-            res = eval_run(run, progress=not a.no_progress)
+            res = eval_run(run, progress=not a.no_progress, robustness=a.robustness)
             print((Path(run) / "results.md").read_text())
             del res
         return 0
@@ -330,7 +336,8 @@ def _dispatch(a) -> int:
         if sets and not a.reevaluate and results_current(a.run, a.every):
             eval_extra_sets(a.run, sets)  # the checkpoints are chosen already: replay the extra sets only
         else:
-            eval_run(a.run, progress=not a.no_progress, every=a.every, extra_sets=sets, ckpt_batch=a.ckpt_batch)
+            eval_run(a.run, progress=not a.no_progress, every=a.every, extra_sets=sets, ckpt_batch=a.ckpt_batch,
+                     robustness=a.robustness)
         print((Path(a.run) / "results.md").read_text())
         for name, f in sets.items():
             out = replay_results_dir(a.run, name)

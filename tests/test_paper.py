@@ -92,7 +92,7 @@ def test_runs_are_cached_by_their_full_resolved_config(tmp_path, monkeypatch, ca
     --set booleans parse (false is false)."""
     calls = []
 
-    def fake_run_one(task, method, mix, seeds, out, extra, every=1):
+    def fake_run_one(task, method, mix, seeds, out, extra, every=1, ckpt_batch=1):
         calls.append((task, method, mix, dict(extra)))
         cfg = paper.resolve_config(task, method, mix, seeds, extra)
         return {**_res(0.1, 0.1), "config_hash": paper.config_hash(cfg), "eval_every": every,

@@ -5,7 +5,9 @@ shared state ``s``. On top of brax's API a task exposes what the trainer, the de
 evaluation need:
 
 * ``human_action_size`` / ``robot_action_size`` -- the split of the action vector.
-* ``max_episode_steps`` -- the time limit; ``step`` sets ``done`` on success or at the limit.
+* ``max_episode_steps`` -- the time limit; ``step`` sets ``done`` on success, on failure or at the limit,
+  and ``info["truncation"]`` (brax's convention) to 1.0 when the limit ended the episode without success or
+  failure: a time-out is not a terminal state, and the trainer bootstraps it with the critic.
 * ``init_size`` and ``reset_from(init)`` -- reset to a given initial condition (replay evaluation starts a
   held-out demonstration's episode exactly where the demonstration started); ``reset(rng)`` samples an
   ``init`` with ``sample_init`` and calls ``reset_from``.
@@ -16,15 +18,9 @@ evaluation need:
   (team_state, action)`` -- the scripted human-human team, pure JAX, vmappable. ``mix`` is a vector of
   strategy probabilities (len(strategy_names)).
 * ``render(state) -> np.ndarray`` -- an RGB frame (H, W, 3) uint8 of one (unbatched) state.
-* ``snapshot(state) -> (snapshot_size,)`` and ``restore(snapshot) -> State`` -- a flat float32 vector of what
-  the episode needs to go on from ``state`` (the simulator's positions, velocities and controls, ``info``
-  and ``metrics``), and the state rebuilt from it. Scripted demonstrations store snapshots along each
-  episode, so that training can start episodes from demonstration states (``TrainConfig.demo_reset``).
-  A task provides ``_sim_snapshot(pipeline_state) -> pytree``, ``_sim_restore(pytree) -> pipeline_state``
-  and ``_observe(pipeline_state, info) -> obs``.
 
 ``State.metrics`` holds at least ``success`` (float 0/1, sticky within an episode) and the task's
-strategy events. ``State.info`` holds at least ``t`` (int32 step counter).
+strategy events. ``State.info`` holds at least ``t`` (int32 step counter) and ``truncation`` (float 0/1).
 """
 from __future__ import annotations
 
@@ -86,46 +82,12 @@ class CollabEnv(Env):
     def render(self, state: State):
         raise NotImplementedError
 
-    # ------------------------------------------------------------------ snapshots
-    def _sim_snapshot(self, pipeline_state) -> Any:
-        raise NotImplementedError(f"task {self.name} does not support snapshots")
-
-    def _sim_restore(self, sim) -> Any:
-        raise NotImplementedError(f"task {self.name} does not support snapshots")
-
-    def _observe(self, pipeline_state, info: dict) -> jax.Array:
-        raise NotImplementedError(f"task {self.name} does not support snapshots")
-
-    def _snapshot_tree(self, state: State) -> dict:
-        return {"sim": self._sim_snapshot(state.pipeline_state), "info": state.info, "metrics": state.metrics}
-
-    def _snapshot_unravel(self):
-        if getattr(self, "_unravel", None) is None:
-            from jax.flatten_util import ravel_pytree
-
-            shapes = jax.eval_shape(lambda: self._snapshot_tree(self.reset_from(jnp.zeros((self.init_size,)))))
-            flat, self._unravel = ravel_pytree(jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes))
-            self._snapshot_size = int(flat.shape[0])
-        return self._unravel
-
-    @property
-    def snapshot_size(self) -> int:
-        self._snapshot_unravel()
-        return self._snapshot_size
-
-    def snapshot(self, state: State) -> jax.Array:
-        """One (unbatched) state as a flat float32 vector (``restore`` rebuilds the state)."""
-        from jax.flatten_util import ravel_pytree
-
-        self._snapshot_unravel()
-        return ravel_pytree(self._snapshot_tree(state))[0].astype(jnp.float32)
-
-    def restore(self, snapshot: jax.Array) -> State:
-        """The state a ``snapshot`` was taken of (reward and done zero), ready to ``step``."""
-        tree = self._snapshot_unravel()(jnp.asarray(snapshot, jnp.float32))
-        ps = self._sim_restore(tree["sim"])
-        zero = jnp.zeros(())
-        return State(ps, self._observe(ps, tree["info"]), zero, zero, tree["metrics"], tree["info"])
+    def time_limit(self, t: jax.Array, terminal: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """``(done, truncation)`` (float32) for a step that reached step count ``t`` with ``terminal`` (bool:
+        success or failure): the episode ends at a terminal state or at the time limit, and the time limit
+        alone is a truncation."""
+        limit = t >= self.max_episode_steps
+        return (terminal | limit).astype(jnp.float32), (limit & ~terminal).astype(jnp.float32)
 
     @property
     def version(self) -> str:

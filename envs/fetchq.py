@@ -135,23 +135,13 @@ class FetchQuest(CollabEnv):
             "human_pressed": zero,  # 0 none, else 1 + room of the first button the human held
             "robot_pressed": zero,
         }
-        info = {"t": jnp.zeros((), jnp.int32)}
+        info = {"t": jnp.zeros((), jnp.int32), "truncation": zero}
         obs = self._obs(pipeline, info["t"])
         return State(pipeline, obs, zero, zero, metrics, info)
 
     def _doors(self, pos: jax.Array) -> jax.Array:
         d = jnp.linalg.norm(pos[:, None, :] - BUTTONS[None], axis=-1)  # (agent, button)
         return jnp.any(d < BUTTON_R, axis=0).astype(jnp.float32)
-
-    # snapshots (base.CollabEnv.snapshot): the pipeline state is already a small dict of arrays
-    def _sim_snapshot(self, ps: dict) -> dict:
-        return ps
-
-    def _sim_restore(self, sim: dict) -> dict:
-        return sim
-
-    def _observe(self, ps: dict, info: dict) -> jax.Array:
-        return self._obs(ps, info["t"])
 
     def _obs(self, ps: dict, t: jax.Array) -> jax.Array:
         return jnp.concatenate(
@@ -197,9 +187,9 @@ class FetchQuest(CollabEnv):
         success = jnp.all(in_dest & (carry >= 0)).astype(jnp.float32)
         m["success"] = jnp.maximum(m["success"], success)
         t = state.info["t"] + 1
-        done = ((m["success"] > 0) | (t >= self.max_episode_steps)).astype(jnp.float32)
+        done, truncation = self.time_limit(t, m["success"] > 0)
         new_ps = {"pos": pos, "treasure": treasure, "carry": carry, "doors": new_doors}
-        info = dict(state.info, t=t)
+        info = dict(state.info, t=t, truncation=truncation)
         return state.replace(
             pipeline_state=new_ps, obs=self._obs(new_ps, t), reward=success, done=done, metrics=m, info=info
         )

@@ -93,7 +93,7 @@ def handover_xml(iterations: int = mc.ITERATIONS, ls_iterations: int = mc.LS_ITE
                         iterations=iterations, ls_iterations=ls_iterations, timestep=timestep)
 
 
-class Handover(mc.MjxSnapshots, CollabEnv):
+class Handover(CollabEnv):
     """HR-Handover with brax's ``Env`` API (``pipeline_state`` is ``mjx.Data``).
 
     ``iterations`` / ``ls_iterations``: Newton solver settings; ``n_substeps``: physics steps per env step;
@@ -159,7 +159,7 @@ class Handover(mc.MjxSnapshots, CollabEnv):
             ctrl = ctrl.at[g.act + 6].set(mc.MAX_GAP)
         d = mc.make_data(m, self.mx, qpos, ctrl, self._template)
         zero = jnp.zeros(())
-        info = {"t": jnp.zeros((), jnp.int32), "failed": zero, "released": zero,
+        info = {"t": jnp.zeros((), jnp.int32), "truncation": zero, "failed": zero, "released": zero,
                 "hold": jnp.zeros((), jnp.int32), "human_grasp": zero, "robot_grasp": zero}
         metrics = {"success": zero, "handover": zero, "handover_x": zero, "handover_y": zero,
                    "handover_z": zero}
@@ -211,8 +211,8 @@ class Handover(mc.MjxSnapshots, CollabEnv):
         succ = (r_grasp & ~h_touch & lifted & (dist > SUCCESS_DIST)).astype(jnp.float32)
         m["success"] = jnp.maximum(m["success"], succ)
         t = info["t"] + 1
-        done = ((m["success"] > 0) | (t >= self.max_episode_steps) | failed).astype(jnp.float32)
-        info = dict(info, t=t, failed=failed.astype(jnp.float32), released=released,
+        done, truncation = self.time_limit(t, (m["success"] > 0) | failed)
+        info = dict(info, t=t, truncation=truncation, failed=failed.astype(jnp.float32), released=released,
                     hold=hold.astype(jnp.int32), human_grasp=h_grasp.astype(jnp.float32), robot_grasp=r_grasp.astype(jnp.float32))
         return state.replace(pipeline_state=d, obs=self._obs(d, info), reward=succ, done=done,
                              metrics=m, info=info)

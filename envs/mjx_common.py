@@ -370,30 +370,6 @@ def make_data(m: mujoco.MjModel, mx: mjx.Model, qpos: jax.Array, ctrl: jax.Array
     return mjx.forward(mx, d)
 
 
-def snapshot_data(d: mjx.Data) -> dict:
-    """What a snapshot keeps of an ``mjx.Data``: positions, velocities and controls."""
-    return {"qpos": d.qpos, "qvel": d.qvel, "ctrl": d.ctrl}
-
-
-def restore_data(mx: mjx.Model, sim: dict, template: mjx.Data) -> mjx.Data:
-    """An ``mjx.Data`` at a snapshot's positions, velocities and controls, after ``mjx.forward``."""
-    return mjx.forward(mx, template.replace(qpos=sim["qpos"], qvel=sim["qvel"], ctrl=sim["ctrl"]))
-
-
-class MjxSnapshots:
-    """The snapshot hooks of ``base.CollabEnv.snapshot`` / ``restore`` for an MJX task (``self.mx``,
-    ``self._template`` and ``self._obs(d, info)``)."""
-
-    def _sim_snapshot(self, d) -> dict:
-        return snapshot_data(d)
-
-    def _sim_restore(self, sim: dict):
-        return restore_data(self.mx, sim, self._template)
-
-    def _observe(self, d, info: dict) -> jax.Array:
-        return self._obs(d, info)
-
-
 def rot6d(mat: jax.Array) -> jax.Array:
     """Continuous 6D rotation: first two columns of a (..., 3, 3) rotation matrix, flattened."""
     return jnp.concatenate([mat[..., :, 0], mat[..., :, 1]], axis=-1)

@@ -179,7 +179,7 @@ def seqmanip_xml(iterations: int = mc.ITERATIONS, ls_iterations: int = mc.LS_ITE
                         iterations=iterations, ls_iterations=ls_iterations, timestep=timestep)
 
 
-class SeqManip(mc.MjxSnapshots, CollabEnv):
+class SeqManip(CollabEnv):
     """HR-SeqManip with brax's ``Env`` API (``pipeline_state`` is ``mjx.Data``).
 
     ``iterations`` / ``ls_iterations``: Newton solver settings; ``n_substeps``: physics steps per env
@@ -251,9 +251,9 @@ class SeqManip(mc.MjxSnapshots, CollabEnv):
             ctrl = ctrl.at[g.act + 6].set(mc.MAX_GAP)
         d = mc.make_data(m, self.mx, qpos, ctrl, self._template)
         zero = jnp.zeros(())
-        info = {"t": jnp.zeros((), jnp.int32), "failed": zero, "human_grasp": zero, "robot_grasp": zero,
-                "human_handle": zero, "robot_handle": zero, "obj_last": zero, "handle_last": zero,
-                "opening": zero}
+        info = {"t": jnp.zeros((), jnp.int32), "truncation": zero, "failed": zero, "human_grasp": zero,
+                "robot_grasp": zero, "human_handle": zero, "robot_handle": zero, "obj_last": zero,
+                "handle_last": zero, "opening": zero}
         metrics = {"success": zero, "handover": zero, "opened_by": zero, "placed_by": zero,
                    "closed_by": zero, "max_open": zero}
         return State(d, self._obs(d, info), zero, zero, metrics, info)
@@ -328,9 +328,9 @@ class SeqManip(mc.MjxSnapshots, CollabEnv):
         succ = (inside & free & (opening < CLOSED_TOL) & (speed < REST_SPEED)).astype(jnp.float32)
         m["success"] = jnp.maximum(m["success"], succ)
         t = info["t"] + 1
-        done = ((m["success"] > 0) | (t >= self.max_episode_steps) | failed).astype(jnp.float32)
+        done, truncation = self.time_limit(t, (m["success"] > 0) | failed)
         f = lambda x: x.astype(jnp.float32)
-        info = dict(info, t=t, failed=f(failed), human_grasp=f(h_grasp), robot_grasp=f(r_grasp),
+        info = dict(info, t=t, truncation=truncation, failed=f(failed), human_grasp=f(h_grasp), robot_grasp=f(r_grasp),
                     human_handle=f(h_handle),
                     robot_handle=f(r_handle), obj_last=obj_last, handle_last=handle_last, opening=opening)
         return state.replace(pipeline_state=d, obs=self._obs(d, info), reward=succ, done=done,

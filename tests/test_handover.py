@@ -60,22 +60,24 @@ def rollout(env):
 
 @pytest.fixture(scope="module")
 def first(env):
-    """One jitted call: reset(rng); three single steps (one compiled step, ``lax.map`` over the inputs): from
-    the reset state with an out-of-range action, from it with zero action, and from it with the bar thrown at
-    1e4 m/s (a diverging simulation); reset_from(sample_init(rng)). (The eager MJX reset and a separately
-    jitted step the divergence test once used cost ~75 s on CPU.)"""
+    """One jitted call: reset(rng); four single steps (one compiled step, ``lax.map`` over the inputs): from
+    the reset state with an out-of-range action, from it with zero action, from it with the bar thrown at
+    1e4 m/s (a diverging simulation), and from it one step before the time limit;
+    reset_from(sample_init(rng)). (The eager MJX reset and a separately jitted step the divergence test once
+    used cost ~75 s on CPU.)"""
 
     def f(rng):
         s0 = env.reset(rng)
         d = s0.pipeline_state
         bad = s0.replace(pipeline_state=d.replace(qvel=d.qvel.at[:].set(1e4)))
-        states = jax.tree.map(lambda *x: jnp.stack(x), s0, s0, bad)
+        late = s0.replace(info={**s0.info, "t": s0.info["t"] + env.max_episode_steps - 1})
+        states = jax.tree.map(lambda *x: jnp.stack(x), s0, s0, bad, late)
         zero = jnp.zeros(env.action_size)
-        actions = jnp.stack([zero.at[0].set(5.0), zero, zero])  # 5.0: clipped to 1 cm
+        actions = jnp.stack([zero.at[0].set(5.0), zero, zero, zero])  # 5.0: clipped to 1 cm
         steps = jax.lax.map(lambda sa: env.step(*sa), (states, actions))
-        s1, ok, diverged = (jax.tree.map(lambda x, i=i: x[i], steps) for i in range(3))
+        s1, ok, diverged, timeout = (jax.tree.map(lambda x, i=i: x[i], steps) for i in range(4))
         init = env.sample_init(rng)
-        return s0, s1, init, env.reset_from(init), ok, diverged
+        return s0, s1, init, env.reset_from(init), ok, diverged, timeout
 
     return jax.device_get(jax.jit(f)(jax.random.PRNGKey(3)))
 
@@ -151,20 +153,11 @@ def test_diverged_physics_step_ends_the_episode_with_finite_state(env, first):
     np.testing.assert_array_equal(np.asarray(nxt.pipeline_state.qpos), np.asarray(s.pipeline_state.qpos))
 
 
-def test_snapshot_restores_the_state_of_reset(env, first):
-    """env.restore(env.snapshot(s)) has reset's pytree, shapes and dtypes (what demo_reset mixes with fresh
-    episodes), and a snapshot holds the state's positions, velocities, controls, info and metrics (traced and
-    flattened only: the seqmanip test runs a restore)."""
-    r = jax.eval_shape(env.restore, jnp.zeros((env.snapshot_size,)))
-    s = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
-    assert jax.tree.structure(r) == jax.tree.structure(s)
-    assert all(a.shape == b.shape and a.dtype == b.dtype for a, b in zip(jax.tree.leaves(r), jax.tree.leaves(s)))
-    s1 = first[1]  # after one step
-    snap = env.snapshot(s1)
-    assert snap.shape == (env.snapshot_size,) and snap.dtype == jnp.float32
-    tree = env._snapshot_unravel()(snap)
-    for k in ("qpos", "qvel", "ctrl"):
-        np.testing.assert_array_equal(tree["sim"][k], getattr(s1.pipeline_state, k))
-    assert int(tree["info"]["t"]) == 1 and tree["info"]["t"].dtype == jnp.int32
-    for k in s1.metrics:
-        np.testing.assert_array_equal(tree["metrics"][k], s1.metrics[k])
+def test_time_limit_is_a_truncation_and_divergence_a_failure(env, first):
+    """``info["truncation"]`` is 1 when the time limit ended the episode (the trainer bootstraps it with the
+    critic) and 0 while it goes on or when it ends in failure (a diverged simulation)."""
+    s0, ok, diverged, timeout = first[0], first[4], first[5], first[6]
+    assert float(s0.info["truncation"]) == 0.0 and float(ok.info["truncation"]) == 0.0
+    assert float(diverged.done) == 1.0 and float(diverged.info["truncation"]) == 0.0
+    assert int(timeout.info["t"]) == env.max_episode_steps
+    assert float(timeout.done) == 1.0 and float(timeout.info["truncation"]) == 1.0

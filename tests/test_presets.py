@@ -55,3 +55,108 @@ def test_preset_runs_with_its_terms(method, tiny_cfg, fetchq, expert):
         assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(h0), jax.tree.leaves(h1)))
         r0, r1 = before.params["actor"]["params"]["robot"], after.params["actor"]["params"]["robot"]
         assert not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(r0), jax.tree.leaves(r1)))
+
+
+# ---------------------------------------------------------------- which terms each preset optimises
+SHARED = {"L_r"}  # our addition, on by default (lambda_r = 1) for every preset with an environment
+TERMS = {
+    "cogail": {"gail_human", "gail_robot", "L_z", "L_a"} | SHARED,
+    "ma_infogail": {"gail_human", "gail_robot", "L_z"} | SHARED,
+    "ma_gail": {"gail_human", "gail_robot"} | SHARED,
+    "bc_gail": {"gail_robot"} | SHARED,
+    "bc_single": {"bc_robot"},
+    "diayn": {"gail_human", "gail_robot", "diversity"} | SHARED,
+}
+BC_TERMS = {  # with bc_steps > 0: BC pre-training; psi learns the demonstrations' codes only with L_a
+    "cogail": {"bc_human", "bc_robot", "bc_psi"},
+    "ma_infogail": {"bc_human", "bc_robot"},
+    "ma_gail": {"bc_human", "bc_robot"},
+    "bc_gail": {"bc_human", "bc_robot"},  # the robot gets the same BC as the other presets' robots
+    "bc_single": {"bc_robot"},
+    "diayn": {"bc_human", "bc_robot"},
+}
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_objective_terms_table(method):
+    from cogail_jax import losses
+    from cogail_jax.config import TrainConfig
+
+    base = TrainConfig(method=method)
+    assert losses.objective_terms(base) == TERMS[method]
+    assert losses.objective_terms(base.replace(bc_steps=10)) == TERMS[method] | BC_TERMS[method]
+    ppo_bc = set() if method == "bc_single" else {"ppo_bc"}
+    assert losses.objective_terms(base.replace(bc_coef=1.0)) == TERMS[method] | ppo_bc
+    assert losses.objective_terms(base.replace(lambda_r=0.0)) == TERMS[method] - {"L_r"}
+    assert losses.objective_terms(base) <= set(losses.TERMS)
+    table = losses.preset_table_markdown()
+    assert f"| `{method}`" in table and len(table.splitlines()) >= len(METHODS) + 2
+
+
+def _context(method, tiny_cfg, fetchq, expert, **kw):
+    expert = jax.tree.map(jax.numpy.asarray, expert)
+    cfg = tiny_cfg.replace(method=method, seeds=(1,), bc_steps=1, bc_coef=1.0, **kw)
+    ctx = train.make_context(cfg, fetchq)
+    ns = train.fit_normalizer(expert)
+    norm = {"mean": ns["mean"], "std": ns["std"]}
+    state = train.init_state(ctx, norm, np.zeros((int(ns["num_demos"]), cfg.code_dim), np.float32),
+                             jax.random.PRNGKey(0))
+    exp_b = train.sample_expert(norm, expert, jax.random.PRNGKey(1), 64)
+    gen_b = {**exp_b, "prev_obs": exp_b["obs"], "first": np.zeros(64, bool),  # stands in for generated data
+             "z": jax.random.uniform(jax.random.PRNGKey(2), (64, cfg.code_dim), minval=-1, maxval=1)}
+    return ctx, state, exp_b, gen_b, expert
+
+
+def _norm(tree):
+    return max(float(np.abs(x).max()) for x in jax.tree.leaves(tree))
+
+
+@pytest.mark.parametrize("method", ["cogail", "ma_infogail", "diayn", "ma_gail", "bc_gail"])
+def test_only_la_lets_expert_actions_reach_psi(method, tiny_cfg, fetchq, expert):
+    """Exactly the presets with L_a train psi on expert actions: the gradient w.r.t. psi of the expert-data
+    aux terms (L_a, L_r), of BC pre-training and of PPO+BC is exactly zero without L_a (psi's code enters
+    through stop_gradient), nonzero for Co-GAIL's aux and BC objectives; psi learns from generated data (L_z,
+    DIAYN's q fit) where the preset has a code."""
+    from cogail_jax import losses
+
+    ctx, state, exp_b, gen_b, expert = _context(method, tiny_cfg, fetchq, expert)
+    cfg, nets, params = ctx.cfg, ctx.nets, state.params
+    psi_grad = lambda f: _norm(jax.grad(lambda p: f({**params, "psi": p}))(params["psi"]))  # noqa: E731
+    aux_exp = psi_grad(lambda p: losses.aux_objective(cfg, nets, p, None, exp_b)[0])
+    bc = psi_grad(lambda p: losses.bc_objective(cfg, nets, p, exp_b))
+    ppo_batch = {"obs": exp_b["obs"], "z": gen_b["z"], "action": np.zeros((64, fetchq.action_size), np.float32),
+                 "logp": np.zeros(64, np.float32), "adv": np.linspace(-1, 1, 64), "ret": np.zeros(64, np.float32)}
+    ppo = psi_grad(lambda p: losses.ppo_objective(cfg, nets, p, ppo_batch, exp_b)[0])
+    assert ppo == 0.0
+    if method == "cogail":
+        assert aux_exp > 0 and bc > 0
+    else:
+        assert aux_exp == 0.0 and bc == 0.0, (aux_exp, bc)
+    aux_gen = psi_grad(lambda p: losses.aux_objective(cfg, nets, p, gen_b, None)[0])
+    assert (aux_gen > 0) == (method in ("cogail", "ma_infogail", "diayn")), aux_gen
+    # BC pre-training leaves psi where it was unless the preset has L_a
+    after, _ = train.bc_pretrain(ctx, state, expert)
+    moved = _norm(jax.tree.map(lambda a, b: a - b, after.params["psi"], params["psi"]))
+    assert (moved > 0) == (method == "cogail"), moved
+
+
+def test_bc_gail_trains_the_human_by_bc_only(tiny_cfg, fetchq, expert):
+    """BC-GAIL: BC pre-training fits both agents (the robot as in every preset); afterwards neither PPO (its
+    BC term included) nor the aux step (L_r) moves the human tower or the human's log std."""
+    from cogail_jax import losses
+
+    ctx, state, exp_b, gen_b, expert = _context("bc_gail", tiny_cfg, fetchq, expert)
+    cfg, nets, params = ctx.cfg, ctx.nets, state.params
+    after, _ = train.bc_pretrain(ctx, state, expert)
+    for tower in ("human", "robot"):
+        assert _norm(jax.tree.map(lambda a, b: a - b, after.params["actor"]["params"][tower],
+                                  params["actor"]["params"][tower])) > 0, tower
+    batch = {"obs": exp_b["obs"], "z": np.zeros((64, cfg.code_dim), np.float32),
+             "action": np.concatenate([exp_b["ah"], exp_b["ar"]], -1), "logp": np.zeros(64, np.float32),
+             "adv": np.linspace(-1, 1, 64), "ret": np.zeros(64, np.float32)}
+    g, _ = train.ppo_grad(ctx, params, batch, exp_b, True)
+    assert _norm(g["actor"]["params"]["human"]) == 0.0 and _norm(g["actor"]["params"]["robot"]) > 0
+    log_std = np.asarray(g["actor"]["params"]["log_std"])
+    assert np.all(log_std[: fetchq.human_action_size] == 0) and np.any(log_std[fetchq.human_action_size:] != 0)
+    aux = jax.grad(lambda a: losses.aux_objective(cfg, nets, {**params, "actor": a}, gen_b, exp_b)[0])(params["actor"])
+    assert _norm(aux["params"]["human"]) == 0.0 and _norm(aux["params"]["robot"]) > 0

@@ -156,8 +156,10 @@ def test_max_episode_steps_sets_the_time_limit_of_training_and_evaluation(tiny_c
     assert s.env.max_episode_steps == 40
     state = s.env.reset(jax.random.PRNGKey(0))
     for _ in range(40):
+        assert float(state.done) == 0.0 and float(state.info["truncation"]) == 0.0
         state = s.env.step(state, np.zeros(s.env.action_size, np.float32))
     assert float(state.done) == 1.0 and int(state.info["t"]) == 40
+    assert float(state.info["truncation"]) == 1.0  # a time-out, not a terminal state: bootstrapped in GAE
     with pytest.raises(ConfigError, match="max_episode_steps"):
         tiny_cfg.replace(max_episode_steps=-1).validate()
 

@@ -112,11 +112,10 @@ def test_resume_is_exact(tiny_cfg, tmp_path):
 
     # eval on the finished run writes the paper's tables
     res = trainer.eval_run(full, progress=False)
-    for k in ("task", "method", "seeds", "replay_success", "interpolation_success", "strategy_distribution",
-              "best_checkpoint"):
+    for k in ("task", "method", "seeds", "paper_protocol", "last", "per_seed_best", "strategy_distribution"):
         assert k in res
-    assert set(res["replay_success"]) >= {"mean", "std", "per_seed"}
-    assert set(res["best_checkpoint"]) == {"3", "5"}
+    assert set(res["paper_protocol"]["replay"]) >= {"checkpoint", "mean", "std", "per_seed"}
+    assert set(res["per_seed_best"]["replay"]["checkpoint"]) == {"3", "5"}
     assert (full / "results.md").read_text().startswith("# cogail on fetchq")
     assert (full / "strategy_distribution.png").exists() and (full / "latent_map.png").exists()
 
@@ -151,7 +150,7 @@ def test_normaliser_std_floor(tiny_cfg, fetchq):
 
 
 def test_pca_code_init_groups_demos_by_strategy(tiny_cfg, fetchq, setup):
-    """code_init="pca": demos that behave alike start with nearby codes (the nearest other demo's code is
+    """The per-demonstration codes start from the demonstrations' principal components: demos that behave alike start with nearby codes (the nearest other demo's code is
     mostly one of the same strategy; a random layout gets ~1/4), each axis is spread evenly over
     (-0.9, 0.9), and the trainer's initial codes are those (plus a little noise)."""
     demos = data.load_demos(tiny_cfg.demos, fetchq)
@@ -169,51 +168,6 @@ def test_pca_code_init_groups_demos_by_strategy(tiny_cfg, fetchq, setup):
     codes = np.tanh(np.asarray(state.params["codes"]))  # (seeds, demos, 2)
     assert codes.shape == (2, 12, 2) and np.abs(codes - c[None]).max() < 0.35
     assert np.abs(codes[0] - codes[1]).max() > 1e-4  # the noise differs per seed
-    with pytest.raises(Exception, match="code-init"):
-        tiny_cfg.replace(code_init="kmeans").validate()
-
-
-def test_bc_code_noise_changes_what_the_policy_is_fit_on(tiny_cfg, fetchq, setup):
-    """bc_code_noise: the co-policy's BC / L_a loss is taken on (demo code + noise); zero noise is the plain
-    loss; a negative value is refused."""
-    from cogail_jax import losses
-    from cogail_jax.config import ConfigError
-
-    init, _, expert = setup
-    state = init(tiny_cfg.seeds, expert)
-    p = jax.tree.map(lambda x: x[0], state.params)
-    _, _, nets = train.make_train_fns(tiny_cfg, fetchq, train.fit_normalizer(expert))
-    psi, actor = nets["psi"].apply, nets["actor"].apply
-    n = 16
-    b = {"obs": expert["obs"][:n], "ah": expert["ah"][:n], "ar": expert["ar"][:n],
-         "hist": expert["hist"][:n].reshape(n, -1), "prev_ah": expert["prev_ah"][:n], "demo": expert["demo"][:n]}
-    clean = float(losses.bc_loss(psi, actor, p, b, True, codes="demo"))
-    zero = float(losses.bc_loss(psi, actor, p, {**b, "code_noise": np.zeros((n, 2), np.float32)}, True, codes="demo"))
-    noisy = float(losses.bc_loss(psi, actor, p, {**b, "code_noise": np.full((n, 2), 0.5, np.float32)}, True,
-                                 codes="demo"))
-    assert zero == pytest.approx(clean, rel=1e-6) and abs(noisy - clean) > 1e-4
-    # wired into BC pre-training: the same seeds and steps, with noise, fit another actor
-    actors = []
-    for noise in (0.0, 0.5):
-        cfg = tiny_cfg.replace(bc_steps=5, bc_code_noise=noise, seeds=(3,))
-        init_n, _, _ = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
-        actors.append(jax.tree.leaves(init_n(cfg.seeds, expert).params["actor"]))
-    assert max(float(np.abs(a - b).max()) for a, b in zip(*actors)) > 1e-6
-    with pytest.raises(ConfigError, match="bc_code_noise"):
-        tiny_cfg.replace(bc_code_noise=-0.1).validate()
-
-
-def test_stagger_episodes_spreads_the_first_time_outs(tiny_cfg, fetchq, setup):
-    """With stagger_episodes the envs' step counters start spread over the time limit (else all at 0), so the
-    first episodes end at different updates instead of all envs resetting together."""
-    init, _, expert = setup
-    t_plain = np.asarray(init(tiny_cfg.seeds, expert).env_state.info["t"])
-    assert np.all(t_plain == 0)
-    init_s, _, _ = train.make_train_fns(tiny_cfg.replace(stagger_episodes=True), fetchq, train.fit_normalizer(expert))
-    t = np.asarray(init_s(tiny_cfg.seeds, expert).env_state.info["t"])
-    assert t.shape == t_plain.shape
-    assert np.all((t >= 0) & (t < fetchq.max_episode_steps))
-    assert len(np.unique(t)) > t.size // 2
 
 
 @pytest.fixture(scope="module")
@@ -259,7 +213,7 @@ def test_ppo_bc_term_pulls_the_co_policy_to_the_demonstrations(ppo_only, fetchq,
         nz = lambda x: (x - norm["mean"]) / norm["std"]  # noqa: E731
         b = {"obs": nz(expert["obs"][:n]), "ah": expert["ah"][:n], "ar": expert["ar"][:n],
              "hist": nz(expert["hist"][:n]).reshape(n, -1), "prev_ah": expert["prev_ah"][:n]}
-        la, lr, _ = losses.behaviour_loss(nets["psi"].apply, nets["actor"].apply, p, b, fetchq.human_action_size)
+        la, lr = losses.behaviour_loss(nets["psi"].apply, nets["actor"].apply, p, b, fetchq.human_action_size)
         err[coef] = float(la + lr)
     assert err[20.0] < 0.8 * err[0.0], err
     with pytest.raises(ConfigError, match="bc_coef"):
@@ -313,46 +267,56 @@ def test_policy_cooldown_keeps_ppo_off_the_actor(ppo_only, fetchq, setup):
         base.replace(policy_cooldown=-1).validate()
 
 
-def test_demo_reset_starts_episodes_inside_demonstrations(tiny_cfg, fetchq, setup):
-    """demo_reset=1: every episode that restarts begins at a stored demonstration state, with that
-    demonstration's learned code as z and the demonstration's history in psi's input; the share of
-    episodes from the task's own start that succeed is reported; asking for it without snapshots, or
-    with a probability outside [0, 1], is a clear error."""
+def test_gae_bootstraps_time_outs_and_cuts_at_every_episode_end():
+    """GAE on a hand-made (T=3, N=2) rollout: env 0 times out after step 1 (bootstrapped with the critic's
+    value of its final observation), env 1 fails after step 1 (terminal: no next value); both recursions stop
+    there. Treating env 0's time-out as terminal gives another advantage."""
+    from cogail_jax import losses
+
+    g, lam = 0.9, 0.8
+    r = np.array([[1.0, 0.5], [2.0, -1.0], [0.5, 0.25]], np.float32)
+    v = np.array([[0.3, 0.2], [0.7, 0.4], [0.1, 0.6]], np.float32)
+    done = np.array([[0, 0], [1, 1], [0, 0]], np.float32)
+    trunc = np.array([[0, 0], [1, 0], [0, 0]], np.float32)
+    final = np.array([[0, 0], [5.0, 0], [0, 0]], np.float32)  # V(final obs) of the timed-out episode
+    last = np.array([0.9, -0.3], np.float32)
+    adv, ret = losses.gae(r, v, done, trunc, final, last, g, lam)
+    a2 = r[2] + g * last - v[2]
+    a1 = np.array([r[1, 0] + g * 5.0 - v[1, 0], r[1, 1] - v[1, 1]])  # time-out: bootstrapped; failure: not
+    a0 = r[0] + g * v[1] - v[0] + g * lam * a1
+    np.testing.assert_allclose(np.asarray(adv), np.stack([a0, a1, a2]), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(ret), np.stack([a0, a1, a2]) + v, rtol=1e-6)
+    adv_t, _ = losses.gae(r, v, done, np.zeros_like(trunc), final, last, g, lam)  # the time-out as terminal
+    assert abs(float(adv_t[1, 0]) - (r[1, 0] - v[1, 0])) < 1e-6 and abs(float(adv_t[1, 0] - adv[1, 0])) > 1.0
+    np.testing.assert_array_equal(np.asarray(adv_t[:, 1]), np.asarray(adv[:, 1]))
+
+
+def test_rollout_records_time_outs_with_the_value_of_the_final_observation(tiny_cfg, setup):
+    """A time-out is a truncation: the rollout flags it and records the critic's value of the episode's final
+    observation (what the auto-reset replaced), recomputed here by stepping the env that far; other steps
+    carry no final value, and a terminal step none either."""
     import cogail_envs
 
-    from cogail_jax.config import ConfigError
+    from cogail_jax import rollout as ro
+    from cogail_jax.networks import normalize
 
-    _, _, expert0 = setup
-    demos = data.load_demos(tiny_cfg.demos, fetchq)
-    expert = train.expert_arrays(demos, tiny_cfg.history, states=True)
-    assert expert["snap"].shape == (len(expert["snap_idx"]), fetchq.snapshot_size)
-    np.testing.assert_array_equal(expert["obs"][expert["snap_idx"]],  # each snapshot is of its step's state
-                                  np.asarray(jax.vmap(fetchq.restore)(expert["snap"]).obs))
-    short = cogail_envs.make_env("fetchq", max_episode_steps=40)  # first episodes end inside the 32 steps
-    cfg = tiny_cfg.replace(seeds=(3,), num_envs=16, demo_reset=1.0, stagger_episodes=True)
-    init, chunk, _ = train.make_train_fns(cfg, short, train.fit_normalizer(expert))
-    state = init(cfg.seeds, expert)
-    state, m = chunk(state, expert)
-    m = jax.device_get(m)
-    assert "fresh_episode_success" in m and np.all((m["fresh_episode_success"] >= 0) & (m["fresh_episode_success"] <= 1))
-    from_demo = np.asarray(state.env_state.info["from_demo"][0]) > 0
-    assert from_demo.sum() >= 4
-    codes = np.tanh(np.asarray(state.params["codes"][0]))
-    z = np.asarray(state.z[0])[from_demo]
-    assert np.abs(z[:, None] - codes[None]).sum(-1).min(1).max() < 0.05  # z is a demonstration's code
-    hist = np.asarray(state.hist[0])[from_demo]
-    np.testing.assert_allclose(hist[:, -1], np.asarray(state.env_state.obs[0])[from_demo], atol=1e-6)
-    with pytest.raises(ConfigError, match="demo_reset"):
-        tiny_cfg.replace(demo_reset=1.5).validate()
-    import h5py
-
-    plain = tiny_cfg.demos.replace(".hdf5", "_plain.hdf5")
-    with h5py.File(tiny_cfg.demos) as f, h5py.File(plain, "w") as g:
-        for k, v in f.attrs.items():
-            g.attrs[k] = v
-        f.copy("data", g)
-        for k in g["data"]:
-            del g[f"data/{k}/states"]
-    with pytest.raises(ConfigError, match="no.*cogail demos"):
-        trainer.build(tiny_cfg.replace(demos=plain, demo_reset=0.5), need_heldout=False)
-    assert "snap" not in expert0  # off: the expert arrays and the rollout are as before
+    _, _, expert = setup
+    env = cogail_envs.make_env("fetchq", max_episode_steps=5)
+    cfg = tiny_cfg.replace(seeds=(3,), unroll_length=4)
+    ctx = train.make_context(cfg, env)
+    norm_stats = train.fit_normalizer(expert)
+    norm = {"mean": norm_stats["mean"], "std": norm_stats["std"]}
+    state = train.init_state(ctx, norm, np.zeros((12, 2), np.float32), jax.random.PRNGKey(0))
+    run = jax.jit(lambda c, k: ro.rollout(cfg, env, ctx.nets.actor, ctx.nets.critic, state.params, norm, c, k))
+    c1, tr1, _ = run(state.carry, jax.random.PRNGKey(1))  # steps 1..4 of the first episodes: no time-out yet
+    assert float(tr1["truncation"].sum()) == 0 and float(np.abs(tr1["final_value"]).max()) == 0
+    c2, tr2, last = run(c1, jax.random.PRNGKey(2))  # the first step of this unroll hits the 5-step limit
+    np.testing.assert_array_equal(np.asarray(tr2["truncation"][0]), 1.0)
+    np.testing.assert_array_equal(np.asarray(tr2["done"][0]), 1.0)
+    assert float(tr2["truncation"][1:].sum()) == 0 and float(np.abs(tr2["final_value"][1:]).max()) == 0
+    final = jax.vmap(env.step)(c1.env_state, tr2["act"][0])  # the episodes' final states, before the reset
+    assert np.all(np.asarray(final.info["truncation"]) == 1.0)
+    want = ctx.nets.critic(state.params["critic"], normalize(norm, final.obs), tr2["z"][0])
+    np.testing.assert_allclose(np.asarray(tr2["final_value"][0]), np.asarray(want), rtol=1e-5, atol=1e-6)
+    # the next step's value is that of the fresh episode, not of the final observation
+    assert float(np.abs(np.asarray(tr2["value"][1]) - np.asarray(want)).max()) > 1e-4

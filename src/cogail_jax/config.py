@@ -33,22 +33,11 @@ class TrainConfig:
     num_envs: int = 64
     unroll_length: int = 94  # num_envs * unroll_length env steps per update (~6000, the paper's buffer)
     updates_per_call: int = 10  # updates fused into one jitted call (lax.scan)
-    # each env's first episode starts at a random point of the time limit, so that time-outs are spread over
-    # updates; off, episodes that all run to the limit (seqmanip's co-policy never succeeds early on) reset
-    # together and every update's batch is a slice of one phase of the task (README, "HR-SeqManip")
-    stagger_episodes: bool = False
     # how the seed axis runs on several devices (--devices): "shard_map" (one SPMD program), "per_device" (the
     # one-device program on each device, from threads) or "auto" (per_device for the MJX tasks, whose 2-device
     # shard_map program crashes XLA's GPU compiler; shard_map for fetchq)
     multi_device: str = "auto"
     checkpoint_every: int = 30  # updates
-    # reference-state initialisation (our addition, 0 = the paper): the probability that a training episode
-    # starts from a stored state of a training demonstration (a simulator snapshot every 10 steps, written by
-    # `cogail demos`), with that demonstration's learned code as its z and its history in psi's input, instead
-    # of from the task's initial distribution. Later phases of a long task are practised without first getting
-    # through the earlier ones (DeepMimic's reference state initialisation; README, "HR-SeqManip").
-    # Evaluation always starts from the task's initial distribution.
-    demo_reset: float = 0.0
     # PPO (co-policy)
     lr: float = 3e-4  # linear decay to 0 over the run
     gamma: float = 0.99
@@ -61,7 +50,6 @@ class TrainConfig:
     max_grad_norm: float = 0.5
     init_log_std: float = -1.6  # std 0.2: the demonstrations are smooth; a noisier start is told apart at once
     reward_norm: bool = True
-    policy_warmup: int = 0  # updates during which PPO trains the critic only (the actor keeps its BC init)
     policy_cooldown: int = 0  # the run's last N updates: PPO trains the critic only, the co-policy moves by the
     #   L_a / L_r steps alone (our addition, 0 = off; README, "HR-SeqManip")
     # PPO+BC (our addition, 0 = off): every PPO minibatch adds bc_coef x the squared error of the co-policy's
@@ -87,21 +75,20 @@ class TrainConfig:
     lambda_z: float = 0.05  # the paper gives no value; 1.0 erodes interpolation (README)
     lambda_a: float = 1.0
     diversity_coef: float = 0.1  # DIAYN: weight of the diversity reward
-    lambda_spread: float = 0.0  # our addition: psi's codes of expert histories match the prior's moments (0 = off)
     la_codes: str = "demo"  # L_a's code: "psi" (the paper: psi of each step's history) or "demo" (one learned
     # code per demonstration, psi regressing it; keeps the code constant along an episode as in the rollouts)
-    lambda_r: float = 1.0  # our addition: robot-action reconstruction on expert data with psi's code (0 = paper)
+    lambda_r: float = 1.0  # our addition: robot-action reconstruction on expert data with psi's code (0 = paper;
+    #   without L_a psi's code enters through stop_gradient)
     aux_lr: float = 3e-4
     inner_updates: int = 4  # discriminator / psi updates per train step (Algorithm 1's "update step = 1..n")
     inner_batch: int = 256
-    # behaviour-cloning pre-training of the co-policy (and psi) on the demonstrations
+    # behaviour-cloning pre-training of the co-policy (and of psi, in presets with L_a) on the demonstrations
     bc_steps: int = 0
     bc_lr: float = 1e-3
-    code_init: str = "pca"  # per-demo codes start at: "pca" (the demos' trajectories, 2 principal components,
-    #   rank-spread over the code square: similar demos get nearby codes) or "random" (0.1 N(0, 1))
-    bc_codes: str = "demo"  # "demo": one learned code per demonstration; "psi": psi's code of each step
-    bc_code_noise: float = 0.0  # std of Gaussian noise on a demonstration's code where the co-policy acts on it
-    #   (BC, L_a): blurs what a code can say about one demonstration (its timing) and keeps its strategy
+    # the co-policy's code in BC: "demo": one learned code per demonstration (starting from the demos'
+    # trajectories' 2 principal components, rank-spread over the code square: similar demos get nearby codes);
+    # "psi": psi's code of each step
+    bc_codes: str = "demo"
     # evaluation
     eval_codes: int = 100
 
@@ -114,7 +101,7 @@ class TrainConfig:
     def num_updates(self) -> int:
         return max(1, self.total_steps // self.steps_per_update)
 
-    # --- method presets: which terms are on -----------------------------------------------------
+    # --- method presets: which terms are on (losses.objective_terms assembles them) ------------
     @property
     def multi_device_mode(self) -> str:
         if self.multi_device != "auto":
@@ -145,14 +132,6 @@ class TrainConfig:
     def freeze_human(self) -> bool:  # BC-GAIL: the human tower is trained by BC only, then frozen
         return self.method == "bc_gail"
 
-    @property
-    def use_lr(self) -> bool:  # robot-action reconstruction on expert data (our addition; all GAIL presets)
-        return self.lambda_r > 0 and not self.bc_only
-
-    @property
-    def bc_target(self) -> str:
-        return {"bc_single": "robot", "bc_gail": "human"}.get(self.method, "both")
-
     def validate(self) -> "TrainConfig":
         if self.task not in TASK_NAMES:
             raise ConfigError(f"unknown task {self.task!r}: choose one of {', '.join(TASK_NAMES)}")
@@ -172,22 +151,16 @@ class TrainConfig:
             raise ConfigError(f"max_episode_steps must be >= 0 (0: the task's own time limit), got {self.max_episode_steps}")
         if self.num_demos < 0:
             raise ConfigError(f"num_demos must be >= 0 (0: the task's default), got {self.num_demos}")
-        if self.policy_warmup < 0 or self.policy_cooldown < 0:
-            raise ConfigError("policy_warmup and policy_cooldown must be >= 0")
+        if self.policy_cooldown < 0:
+            raise ConfigError(f"policy_cooldown must be >= 0, got {self.policy_cooldown}")
         if self.bc_coef < 0:
             raise ConfigError(f"bc_coef must be >= 0, got {self.bc_coef}")
-        if not 0.0 <= self.demo_reset <= 1.0:
-            raise ConfigError(f"demo_reset is a probability in [0, 1], got {self.demo_reset}")
-        if self.bc_code_noise < 0:
-            raise ConfigError(f"bc_code_noise must be >= 0, got {self.bc_code_noise}")
         if self.history < 0 or self.bc_steps < 0:
             raise ConfigError("history and bc-steps must be >= 0")
         if self.steps_per_update % self.num_minibatches:
             raise ConfigError(
                 f"num-envs x unroll-length ({self.steps_per_update}) must be divisible by num-minibatches "
                 f"({self.num_minibatches})")
-        if self.code_init not in ("pca", "random"):
-            raise ConfigError(f"code-init must be pca or random, got {self.code_init!r}")
         if self.disc_loss not in ("auto", "bce", "lsgan"):
             raise ConfigError(f"disc-loss must be auto, bce or lsgan, got {self.disc_loss!r}")
         return self

@@ -8,9 +8,6 @@ Schema (version 1)::
     data/demo_<i>/actions_human  float32 (T, human_action_dim)   the human's action at each step
     data/demo_<i>/actions_robot  float32 (T, robot_action_dim)   the robot's action at each step
     data/demo_<i>/init           float32 (init_dim,)             reset parameters (env.reset_from) [optional]
-    data/demo_<i>/states         float32 (ceil(T / stride), S)   env.snapshot of the state before steps
-                                                                 0, stride, 2 stride, ... [optional]
-    data/demo_<i> attrs:         state_stride (int, with states)
     data/demo_<i> attrs:         strategy (int, 1..S; 0 = unknown), num_samples (int, = T)
 
 Trials recorded by ``cogail play`` (:func:`append_demo`) follow the same schema (file attr mixture =
@@ -18,10 +15,7 @@ Trials recorded by ``cogail play`` (:func:`append_demo`) follow the same schema 
 end (success / timeout / ended), time and the final ``metric_<name>`` values.
 
 The full action the environment takes is ``concat(actions_human, actions_robot)``. ``init`` is only
-needed for replay evaluation (held-out sets); training files may omit it. ``states`` (written by
-``cogail demos``) are only needed to start training episodes from demonstration states
-(``--set demo_reset=P``); they are simulator snapshots of this package's tasks, not something a recording
-of people can carry.
+needed for replay evaluation (held-out sets); training files may omit it.
 """
 from __future__ import annotations
 
@@ -32,7 +26,6 @@ from pathlib import Path
 import numpy as np
 
 SCHEMA_VERSION = 1
-STATE_STRIDE = 10  # steps between the simulator snapshots kept of each generated demonstration
 
 # The default datasets of a task: three disjoint splits, each from its own generator seed (distinct random
 # streams, so no episode of one split is an episode of another).
@@ -66,19 +59,6 @@ class Demos:
     task: str
     path: str = ""
     metrics: dict | None = None  # name -> (N,) final episode metrics recorded by the generator (optional)
-    states: np.ndarray | None = None  # (N, Ts, S) simulator snapshots every `state_stride` steps, zero-padded
-    state_stride: int = 0
-
-    def state_steps(self) -> tuple[np.ndarray, np.ndarray]:
-        """(demo index, step) of every stored snapshot, in the order of ``states[demo, step // stride]``."""
-        if self.states is None:
-            return np.zeros((0,), np.int32), np.zeros((0,), np.int32)
-        d, t = [], []
-        for i in range(self.num):
-            steps = np.arange(0, int(self.length[i]), self.state_stride)
-            d.append(np.full(steps.shape, i, np.int32))
-            t.append(steps.astype(np.int32))
-        return np.concatenate(d), np.concatenate(t)
 
     @property
     def num(self) -> int:
@@ -105,9 +85,6 @@ def save_demos(path: str | os.PathLike, env, episodes, mixture: str = "uniform",
             g.create_dataset("actions_human", data=np.asarray(episodes.actions_human[i, :n], np.float32))
             g.create_dataset("actions_robot", data=np.asarray(episodes.actions_robot[i, :n], np.float32))
             g.create_dataset("init", data=np.asarray(episodes.init[i], np.float32))
-            if getattr(episodes, "states", None) is not None:
-                g.create_dataset("states", data=np.asarray(episodes.states[i, : -(-n // STATE_STRIDE)], np.float32))
-                g.attrs["state_stride"] = STATE_STRIDE
             g.attrs["strategy"] = int(episodes.strategy[i])
             g.attrs["num_samples"] = n
             for k, v in (episodes.final_metrics or {}).items():  # e.g. the handover spot
@@ -207,7 +184,7 @@ def load_demos(path: str | os.PathLike, env, require_init: bool = False) -> Demo
         dims = {"obs": env.observation_size, "actions_human": env.human_action_size,
                 "actions_robot": env.robot_action_size}
         arrays: dict[str, list[np.ndarray]] = {k: [] for k in dims}
-        inits, strategies, lengths, metrics, states, strides = [], [], [], [], [], set()
+        inits, strategies, lengths, metrics = [], [], [], []
         for name in names:
             g = f["data"][name]
             at = f"{where}, demo {name}"
@@ -245,14 +222,6 @@ def load_demos(path: str | os.PathLike, env, require_init: bool = False) -> Demo
                 inits.append(init)
             elif require_init:
                 raise DatasetError(f"{at} has no 'init' dataset, which replay evaluation needs to restart the episode")
-            if "states" in g and env_snapshot_size(env):
-                st = np.asarray(g["states"][()], np.float32)
-                stride = int(g.attrs.get("state_stride", 0))
-                if stride < 1 or st.ndim != 2 or st.shape != (-(-T // stride), env_snapshot_size(env)):
-                    raise DatasetError(f"{at}: 'states' has shape {st.shape} (state_stride {stride}), not the "
-                                       f"snapshots of task {env.name}: regenerate the file with `cogail demos`")
-                states.append(st)
-                strides.add(stride)
     N, Tmax = len(names), max(lengths)
 
     def pad(xs, dim):
@@ -271,35 +240,7 @@ def load_demos(path: str | os.PathLike, env, require_init: bool = False) -> Demo
         task=env.name,
         path=str(path),
         metrics={k: np.asarray([m.get(k, np.nan) for m in metrics]) for k in metrics[0]} if metrics[0] else None,
-        states=_pad_states(states) if len(states) == N and len(strides) == 1 else None,
-        state_stride=strides.pop() if len(states) == N and len(strides) == 1 else 0,
     )
-
-
-def env_snapshot_size(env) -> int:
-    """The task's snapshot length (0 for a task without snapshots)."""
-    try:
-        return env.snapshot_size
-    except NotImplementedError:
-        return 0
-
-
-def _pad_states(states: list[np.ndarray]) -> np.ndarray:
-    out = np.zeros((len(states), max(len(s) for s in states), states[0].shape[1]), np.float32)
-    for i, s in enumerate(states):
-        out[i, : len(s)] = s
-    return out
-
-
-def has_states(path: str | os.PathLike) -> bool:
-    """Whether every demonstration of a file carries simulator snapshots."""
-    import h5py
-
-    try:
-        with h5py.File(path, "r") as f:
-            return all("states" in g for k, g in f["data"].items() if k.startswith("demo"))
-    except (OSError, KeyError):
-        return False
 
 
 def data_dir() -> Path:
@@ -339,21 +280,18 @@ def _stored_version(path: Path) -> str | None:
         return None
 
 
-def ensure_default_demos(env, split: str = "train", mix: str = "uniform", verbose: bool = True, num: int = 0,
-                         states: bool = False) -> Path:
+def ensure_default_demos(env, split: str = "train", mix: str = "uniform", verbose: bool = True, num: int = 0) -> Path:
     """Path of the default dataset of a task (``train``, ``validation`` or ``test``, also called ``heldout``),
     generating it on first use from the split's own generator seed (``SPLIT_SEEDS``); ``num`` > 0
-    asks for that many scripted demonstrations instead of the task's default count; ``states`` regenerates a
-    cached file made before demonstrations carried simulator snapshots."""
+    asks for that many scripted demonstrations instead of the task's default count."""
     from . import demos
 
     path = default_demo_path(env.name, split, mix, num)
     if path.exists():
-        if _stored_version(path) == env.version and (not states or has_states(path)):
+        if _stored_version(path) == env.version:
             return path
         if verbose:
-            why = "under other physics" if _stored_version(path) != env.version else "without simulator snapshots"
-            print(f"{path} was made {why}: regenerating it", flush=True)
+            print(f"{path} was made under other physics: regenerating it", flush=True)
     split = split_name(split)
     num = num or default_count(env.name, split)
     seed = SPLIT_SEEDS[split]  # one generator seed per split: the splits are disjoint

@@ -8,8 +8,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .data import STATE_STRIDE
-
 # Strategy mixtures of the paper (fetchq): D1 = {17, 17, 33, 33}%, D2 = {33, 33, 17, 17}%.
 MIXTURES = {
     "uniform": None,
@@ -30,8 +28,6 @@ class Episodes(NamedTuple):
     success: np.ndarray  # (N,)
     init: np.ndarray  # (N, init_size) reset parameters (reset_from reproduces the start)
     final_metrics: dict  # name -> (N,) metrics at the episode's last step
-    states: np.ndarray | None = None  # (N, ceil(T / STATE_STRIDE), snapshot_size): env.snapshot of the state
-    #   before steps 0, STATE_STRIDE, 2 STATE_STRIDE, ...
 
 
 def resolve_mix(env, mix) -> jnp.ndarray:
@@ -56,8 +52,6 @@ def team_rollout_fn(env, num: int, robot_strategy: int | None = None):
     ``robot_strategy`` (tests only) makes the robot follow a fixed strategy whatever the human does.
     """
     T = env.max_episode_steps
-    stride = STATE_STRIDE
-    blocks = -(-T // stride)
 
     def one(rng, mix):
         k_init, k_team, k_run = jax.random.split(rng, 3)
@@ -78,21 +72,13 @@ def team_rollout_fn(env, num: int, robot_strategy: int | None = None):
             new_metrics = jax.tree.map(lambda a, b: jnp.where(finished, a, b), last_metrics, nxt.metrics)
             return (new_state, ts, finished | ended, new_metrics), out
 
-        def block(carry, keys):  # `stride` steps, and a snapshot of the state before the first of them
-            snap = env.snapshot(carry[0])
-            carry, out = jax.lax.scan(body, carry, keys)
-            return carry, (out, snap)
-
         carry = (state, ts, jnp.array(False), state.metrics)
-        keys = jax.random.split(k_run, T)  # the keys of the T steps (steps past T, in the last block, reuse some)
-        keys = jnp.concatenate([keys, keys[: blocks * stride - T]]).reshape(blocks, stride, *keys.shape[1:])
-        (state, ts, _, metrics), (out, snaps) = jax.lax.scan(block, carry, keys)
-        obs, act, fin = (x.reshape(blocks * stride, *x.shape[2:])[:T] for x in out)
+        (state, ts, _, metrics), (obs, act, fin) = jax.lax.scan(body, carry, jax.random.split(k_run, T))
         length = jnp.sum(~fin).astype(jnp.int32)
         a_h, a_r = env.split_action(act)
         return dict(obs=obs, actions_human=a_h, actions_robot=a_r, length=length, strategy=strategy,
                     executed=env.classify_strategy(metrics), success=metrics["success"], init=init,
-                    final_metrics=metrics, states=snaps)
+                    final_metrics=metrics)
 
     @jax.jit
     def run(rng, mix):

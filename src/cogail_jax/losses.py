@@ -1,24 +1,41 @@
-"""Losses: PPO (clipped surrogate + value), discriminator (BCE or LSGAN with gradient penalty), L_z, L_a."""
+"""Losses and the objective each method preset optimises.
+
+Pure losses: GAE, PPO (clipped surrogate + value), discriminator (BCE or LSGAN with gradient penalty), L_z,
+L_a / L_r, behaviour cloning, DIAYN's q fit and reward. Assembled per preset from ``objective_terms(cfg)``
+(the one place that says which terms a preset has): ``aux_objective`` (the psi / co-policy step),
+``ppo_objective`` (PPO, + BC with ``bc_coef``) and ``bc_objective`` (BC pre-training; BC-single's training).
+"""
 from __future__ import annotations
+
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import optax
 
+from .config import METHODS, TrainConfig
 from .networks import gaussian_entropy, gaussian_log_prob
 
 
-def gae(rewards, values, dones, last_value, gamma, lam):
-    """Generalised advantage estimation over a (T, N) rollout; ``dones[t]`` ends the episode after step t."""
+def gae(rewards, values, dones, truncations, final_values, last_value, gamma, lam):
+    """Generalised advantage estimation over a (T, N) rollout.
+
+    ``dones[t]`` ends the episode after step t; ``truncations[t]`` says it ended by the time limit, not by
+    success or failure. A terminal step (done, not truncated) has no next value; a truncated step is
+    bootstrapped with ``final_values[t]``, the critic's value of the episode's final observation (before the
+    auto-reset replaced it), as the paper's reference PPO does with its bad-transition masks. Either way the
+    advantage recursion stops at the episode's end. ``last_value``: the value of the state after step T-1."""
 
     def body(carry, x):
         adv, next_value = carry
-        r, v, d = x
-        delta = r + gamma * next_value * (1 - d) - v
+        r, v, d, tr, fv = x
+        boot = jnp.where(tr > 0, fv, next_value * (1 - d))
+        delta = r + gamma * boot - v
         adv = delta + gamma * lam * (1 - d) * adv
         return (adv, v), adv
 
-    _, adv = jax.lax.scan(body, (jnp.zeros_like(last_value), last_value), (rewards, values, dones), reverse=True)
+    xs = (rewards, values, dones, truncations, final_values)
+    _, adv = jax.lax.scan(body, (jnp.zeros_like(last_value), last_value), xs, reverse=True)
     return adv, adv + values
 
 
@@ -76,50 +93,58 @@ def code_loss(psi_apply, actor_apply, params, batch, human_size):
     return jnp.mean(jnp.sum((z_hat - batch["z"]) ** 2, -1))
 
 
-def behaviour_loss(psi_apply, actor_apply, params, batch, human_size):
+def behaviour_loss(psi_apply, actor_apply, params, batch, human_size, psi_grad=True):
     """L_a on expert data: the human part of the co-policy, fed psi's code of the expert history, should
     reproduce the expert human action. Also returns the same error for the robot part (L_r, our addition:
-    the robot acting with psi's code on expert histories, weighted by ``lambda_r``)."""
+    the robot acting with psi's code on expert histories, weighted by ``lambda_r``). ``psi_grad=False``: psi's
+    code enters through stop_gradient (presets without L_a: psi learns nothing from expert actions)."""
     z_hat = psi_apply(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1))
+    if not psi_grad:
+        z_hat = jax.lax.stop_gradient(z_hat)
     mean, _ = actor_apply(params["actor"], batch["obs"], z_hat)
     la = jnp.mean(jnp.sum((mean[:, :human_size] - batch["ah"]) ** 2, -1))
     lr = jnp.mean(jnp.sum((mean[:, human_size:] - batch["ar"]) ** 2, -1))
-    return la, lr, code_spread(z_hat)
+    return la, lr
 
 
 def code_spread(z):
     """Match the first two moments of a batch of codes to the prior U(-1, 1)^2 (mean 0, variance 1/3), so
-    the codes psi gives expert behaviour fill the code space the co-policy is sampled over."""
+    the codes fill the code space the co-policy is sampled over."""
     return jnp.sum(jnp.mean(z, 0) ** 2) + jnp.sum((jnp.var(z, 0) - 1.0 / 3.0) ** 2)
 
 
-def bc_loss(psi_apply, actor_apply, params, batch, use_code, spread_coef=0.0, codes="demo", target="both"):
-    """Behaviour cloning of both agents' actions.
+def bc_loss(psi_apply, actor_apply, params, batch, use_code, codes="demo", target="both", train_psi=True):
+    """Behaviour cloning of the agents' actions (``target``: "both", "human" or "robot").
 
     ``codes="demo"``: each demonstration has a learned code (``params["codes"]``, tanh-squashed) that the
-    co-policy acts on for the whole demonstration, psi regresses it from the history, and the codes' moments
-    are pulled to the prior's (U(-1, 1)^2) so that the prior's codes are in distribution.
-    ``codes="psi"``: the co-policy acts on psi's code of each step's history.
+    co-policy acts on for the whole demonstration, and the codes' moments are pulled to the prior's
+    (U(-1, 1)^2) so that the prior's codes are in distribution; with ``train_psi``, psi also regresses the
+    demonstration's code from the history.
+    ``codes="psi"``: the co-policy acts on psi's code of each step's history (through stop_gradient unless
+    ``train_psi``).
     """
-    z_psi = psi_apply(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1))
+    width = batch["ah"].shape[-1]
     if target == "both":
-        target = jnp.concatenate([batch["ah"], batch["ar"]], -1)
-        pick = lambda m: m
+        target, pick = jnp.concatenate([batch["ah"], batch["ar"]], -1), lambda m: m
+    elif target == "human":
+        target, pick = batch["ah"], lambda m: m[..., :width]
     else:
-        h = batch["ah"].shape[-1]
-        target = batch["ah"] if target == "human" else batch["ar"]
-        pick = (lambda m: m[..., :h]) if target is batch["ah"] else (lambda m: m[..., h:])
-    if not use_code:
+        target, pick = batch["ar"], lambda m: m[..., width:]
+    err = lambda mean: jnp.mean(jnp.sum((pick(mean) - target) ** 2, -1))  # noqa: E731
+    z_psi = psi_apply(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1))
+    if not use_code:  # the co-policy acts on z = 0
         mean, _ = actor_apply(params["actor"], batch["obs"], jnp.zeros_like(z_psi))
-        return jnp.mean(jnp.sum((pick(mean) - target) ** 2, -1))
+        return err(mean)
     if codes == "demo":
         all_codes = jnp.tanh(params["codes"])
         z = all_codes[batch["demo"]]
-        mean, _ = actor_apply(params["actor"], batch["obs"], z + batch.get("code_noise", 0.0))
-        recog = jnp.mean(jnp.sum((z_psi - jax.lax.stop_gradient(z)) ** 2, -1))
-        return jnp.mean(jnp.sum((pick(mean) - target) ** 2, -1)) + recog + 10.0 * code_spread(all_codes)
-    mean, _ = actor_apply(params["actor"], batch["obs"], z_psi)
-    return jnp.mean(jnp.sum((pick(mean) - target) ** 2, -1)) + spread_coef * code_spread(z_psi)
+        mean, _ = actor_apply(params["actor"], batch["obs"], z)
+        loss = err(mean)
+        if train_psi:
+            loss = loss + jnp.mean(jnp.sum((z_psi - jax.lax.stop_gradient(z)) ** 2, -1))
+        return loss + 10.0 * code_spread(all_codes)
+    mean, _ = actor_apply(params["actor"], batch["obs"], z_psi if train_psi else jax.lax.stop_gradient(z_psi))
+    return err(mean)
 
 
 def diversity_q_loss(psi_apply, params, hist_in, z):
@@ -132,3 +157,141 @@ def diversity_reward(psi_apply, params, hist_in, z):
     (the constants folded in: -0.5 |q(h) - z|^2 + log 4 - log 2 pi)."""
     d = jnp.sum((psi_apply(params["psi"], hist_in) - z) ** 2, -1)
     return -0.5 * d + jnp.log(4.0) - jnp.log(2 * jnp.pi)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# the objective per preset
+
+class Nets(NamedTuple):
+    """The networks' apply functions and what the objectives need to know about the action."""
+
+    actor: Callable
+    critic: Callable
+    psi: Callable
+    disc: Callable
+    human_size: int
+    disc_kind: str  # "bce" | "lsgan"
+
+
+TERMS = ("gail_human", "gail_robot", "L_z", "L_a", "L_r", "diversity", "ppo_bc", "bc_human", "bc_robot", "bc_psi")
+
+
+def objective_terms(cfg: TrainConfig) -> frozenset[str]:
+    """Exactly which terms a preset optimises:
+
+    * ``gail_human`` / ``gail_robot``: PPO on the discriminator's reward moves the human / robot actions
+    * ``L_z``: psi and the co-policy on code reconstruction from generated data (InfoGAIL)
+    * ``L_a``: behaviour reconstruction of the expert human actions through psi's code (Co-GAIL); the only
+      term through which expert actions reach psi
+    * ``L_r``: robot-action reconstruction on expert data (our addition, ``lambda_r`` > 0); psi's code
+      enters it through stop_gradient unless ``L_a`` is on
+    * ``diversity``: DIAYN's reward for the co-policy and psi's fit as q(z | h) on generated data
+    * ``ppo_bc``: PPO+BC, both agents' squared error on expert data inside the PPO step (``bc_coef`` > 0)
+    * ``bc_human`` / ``bc_robot`` / ``bc_psi``: behaviour cloning of the human / the robot / psi regressing
+      each demonstration's code (BC pre-training with ``bc_steps`` > 0; BC-single's whole training)
+    """
+    if cfg.bc_only:
+        return frozenset({"bc_robot"})
+    t = {"gail_robot"}
+    if not cfg.freeze_human:
+        t.add("gail_human")
+    if cfg.use_lz:
+        t.add("L_z")
+    if cfg.use_la:
+        t.add("L_a")
+    if cfg.lambda_r > 0:
+        t.add("L_r")
+    if cfg.use_diversity:
+        t.add("diversity")
+    if cfg.bc_coef > 0:
+        t.add("ppo_bc")
+    if cfg.bc_steps > 0:
+        t |= {"bc_human", "bc_robot"} | ({"bc_psi"} if cfg.use_la else set())
+    return frozenset(t)
+
+
+def _code_net(cfg: TrainConfig, nets: Nets):
+    """psi, or for a preset without a strategy code the constant z = 0."""
+    if cfg.use_code:
+        return nets.psi
+    return lambda _, h: jnp.zeros(h.shape[:-1] + (cfg.code_dim,))
+
+
+def aux_objective(cfg: TrainConfig, nets: Nets, params, gen_batch, exp_batch):
+    """The psi / co-policy step: lambda_1 L_z (and DIAYN's q fit) on generated data, lambda_2 L_a and
+    lambda_r L_r on expert data, for the terms the preset has. ``gen_batch`` or ``exp_batch`` None leaves
+    that data's terms out. Returns ``(loss, {term: value})``."""
+    on = objective_terms(cfg)
+    terms = {}
+    if gen_batch is not None:
+        if "L_z" in on:
+            terms["loss_z"] = (cfg.lambda_z, code_loss(nets.psi, nets.actor, params, gen_batch, nets.human_size))
+        if "diversity" in on:
+            h = jnp.concatenate([gen_batch["hist"], gen_batch["prev_ah"]], -1)
+            terms["loss_q"] = (1.0, diversity_q_loss(nets.psi, params, h, gen_batch["z"]))
+    if exp_batch is not None and on & {"L_a", "L_r"}:
+        la, lr = behaviour_loss(_code_net(cfg, nets), nets.actor, params, exp_batch, nets.human_size,
+                                psi_grad="L_a" in on)
+        if "L_a" in on:
+            if cfg.la_codes == "demo":  # one learned code per demonstration, psi regressing it
+                la = bc_loss(nets.psi, nets.actor, params, exp_batch, True, codes="demo", target="human")
+            terms["loss_a"] = (cfg.lambda_a, la)
+        if "L_r" in on:
+            terms["loss_r"] = (cfg.lambda_r, lr)
+    total = sum((w * v for w, v in terms.values()), jnp.zeros(()))
+    return total, {k: v for k, (_, v) in terms.items()}
+
+
+def ppo_objective(cfg: TrainConfig, nets: Nets, params, batch, exp_batch):
+    """Clipped PPO on a minibatch; with ``ppo_bc``, + bc_coef x both agents' squared error on an expert
+    minibatch, acting on psi's code of the expert history (held fixed: no gradient reaches psi)."""
+    total, m = ppo_loss(nets.actor, nets.critic, params, batch, cfg.clip_eps, cfg.value_coef, cfg.entropy_coef)
+    if "ppo_bc" in objective_terms(cfg):
+        la, lr = behaviour_loss(_code_net(cfg, nets), nets.actor, params, exp_batch, nets.human_size,
+                                psi_grad=False)
+        total, m = total + cfg.bc_coef * (la + lr), {**m, "ppo_bc": la + lr}
+    return total, m
+
+
+def bc_objective(cfg: TrainConfig, nets: Nets, params, batch):
+    """Behaviour cloning on an expert minibatch: both agents on their demonstration's learned code (BC
+    pre-training; psi learns to recognise the codes only in presets with L_a), or the robot alone
+    (BC-single)."""
+    on = objective_terms(cfg)
+    target = "both" if "bc_human" in on else "robot"
+    return bc_loss(nets.psi, nets.actor, params, batch, cfg.use_code, cfg.bc_codes, target, train_psi="bc_psi" in on)
+
+
+PAPER_WORDING = {  # the paper's section 5 ("Baselines"), one line each
+    "cogail": "The complete method: MA-InfoGAIL plus the behaviour reconstruction loss L_a, to cover all "
+              "strategies of the demonstrations.",
+    "ma_infogail": "MA-GAIL plus InfoGAIL's latent strategy code objective L_z.",
+    "ma_gail": "Human and robot policies learned with a shared GAIL objective.",
+    "bc_gail": "Human and robot policies trained in isolation: the human by BC, then the robot by GAIL "
+               "against the learned human.",
+    "bc_single": "Behaviour cloning of the robot policy only; the human is replayed open-loop.",
+    "diayn": "A diversity reward encourages the human policy to be as diverse as possible.",
+}
+
+
+def preset_table_markdown() -> str:
+    """The method presets and the terms each optimises (from ``objective_terms``), as a Markdown table."""
+    yes = lambda b: "yes" if b else "-"  # noqa: E731
+    rows = ["| preset | paper (section 5) | GAIL human | GAIL robot | L_z | L_a | L_r | DIAYN | BC pre-training "
+            "| PPO+BC | psi learns from |",
+            "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for m in METHODS:
+        cfg = TrainConfig(method=m, bc_steps=1, bc_coef=1.0)
+        t = objective_terms(cfg)
+        bc = ", ".join(k[3:] for k in ("bc_human", "bc_robot", "bc_psi") if k in t) or "-"
+        psi = ", ".join(n for k, n in (("L_z", "L_z"), ("L_a", "L_a"), ("bc_psi", "BC"),
+                                       ("diversity", "q fit (generated data)")) if k in t) or "- (no psi)"
+        name = f"`{m}`" + (" (BC only)" if cfg.bc_only else "")
+        rows.append(f"| {name} | {PAPER_WORDING[m]} | {yes('gail_human' in t)} | {yes('gail_robot' in t)} | "
+                    f"{yes('L_z' in t)} | {yes('L_a' in t)} | {yes('L_r' in t)} | {yes('diversity' in t)} | {bc} | "
+                    f"{yes('ppo_bc' in t)} | {psi} |")
+    return "\n".join(rows) + (
+        "\n\nL_r (`lambda_r`, default 1), BC pre-training (`bc_steps`) and PPO+BC (`bc_coef`, default 0) are our "
+        "additions, shared by every preset that has the agent they train (shown switched on). Without L_a, psi's "
+        "code enters L_r, PPO+BC and BC pre-training only through stop_gradient; without a strategy code "
+        "(`ma_gail`, `bc_gail`, `bc_single`) the co-policy sees z = 0. `bc_gail`'s human is frozen after BC.")

@@ -69,6 +69,32 @@ class Discriminator(nn.Module):
         return jnp.tanh(d) if self.squash else d
 
 
+def disc_kind(cfg, env) -> str:
+    """The discriminator's loss: the config's, or with "auto" the task's (bce for fetchq, lsgan else)."""
+    return env.discriminator_loss if cfg.disc_loss == "auto" else cfg.disc_loss
+
+
+def make_networks(cfg, env) -> dict[str, nn.Module]:
+    """The four networks of a run (BC-GAIL's actor has separate human and robot towers)."""
+    return {
+        "actor": Actor(env.action_size, cfg.init_log_std, env.human_action_size if cfg.freeze_human else 0),
+        "critic": Critic(),
+        "psi": Psi(cfg.code_dim),
+        "disc": Discriminator(squash=disc_kind(cfg, env) == "lsgan"),
+    }
+
+
+def normalize(norm: dict, x):
+    """Observations standardised by the demonstrations' mean and std."""
+    return (x - norm["mean"]) / norm["std"]
+
+
+def history_input(norm: dict, hist):
+    """psi's history input: (..., K+1, D) raw observations -> (..., (K+1) D) normalised."""
+    h = normalize(norm, hist)
+    return h.reshape(*h.shape[:-2], h.shape[-2] * h.shape[-1])
+
+
 def gaussian_log_prob(mean, log_std, x):
     var = jnp.exp(2 * log_std)
     return jnp.sum(-0.5 * ((x - mean) ** 2) / var - log_std - 0.5 * jnp.log(2 * jnp.pi), axis=-1)
@@ -78,4 +104,5 @@ def gaussian_entropy(log_std):
     return jnp.sum(log_std + 0.5 * jnp.log(2 * jnp.pi * jnp.e), axis=-1)
 
 
-__all__ = ["Actor", "Critic", "Psi", "Discriminator", "gaussian_log_prob", "gaussian_entropy", "jax"]
+__all__ = ["Actor", "Critic", "Psi", "Discriminator", "make_networks", "disc_kind", "normalize", "history_input",
+           "gaussian_log_prob", "gaussian_entropy", "jax"]

@@ -57,14 +57,9 @@ def build(cfg: TrainConfig, need_heldout: bool = True, need_validation: bool | N
     env = task_env = cogail_envs.make_env(cfg.task)  # task_env: the task's own limit (the cached demos')
     if cfg.max_episode_steps and cfg.max_episode_steps != env.max_episode_steps:
         env = cogail_envs.make_env(cfg.task, max_episode_steps=cfg.max_episode_steps)
-    train_path = cfg.demos or data.ensure_default_demos(task_env, "train", cfg.mix, num=cfg.num_demos,
-                                                        states=cfg.demo_reset > 0)
+    train_path = cfg.demos or data.ensure_default_demos(task_env, "train", cfg.mix, num=cfg.num_demos)
     demos = data.load_demos(train_path, env)
-    if cfg.demo_reset > 0 and demos.states is None:
-        raise ConfigError(f"demo_reset={cfg.demo_reset} needs simulator snapshots in the training demonstrations, "
-                          f"and {train_path} has none: make the file with `cogail demos --task {cfg.task}` "
-                          f"or set demo_reset=0")
-    expert = train.expert_arrays(demos, cfg.history, states=cfg.demo_reset > 0)
+    expert = train.expert_arrays(demos, cfg.history)
     heldout, validation, files = None, None, {}
     if need_heldout:
         files["test"] = cfg.heldout or data.ensure_default_demos(task_env, "test", cfg.mix)

@@ -1,7 +1,6 @@
 """Scripted human-human demonstrations: the task's team rolled out vmapped in one jitted call."""
 from __future__ import annotations
 
-from functools import partial
 from typing import NamedTuple
 
 import jax

@@ -178,7 +178,8 @@ def bc_step(ctx: Context, state: TrainState, expert):
         return (optax.apply_updates(sub, upd), opt), loss
 
     sub = {"actor": state.params["actor"], "psi": state.params["psi"], "codes": state.params["codes"]}
-    (sub, opt), bc = jax.lax.scan(body, (sub, state.aux_opt), jax.random.split(key, cfg.ppo_epochs * cfg.num_minibatches))
+    keys = jax.random.split(key, cfg.ppo_epochs * cfg.num_minibatches)
+    (sub, opt), bc = jax.lax.scan(body, (sub, state.aux_opt), keys)
     state = state.replace(params={**state.params, **sub}, aux_opt=opt, rng=rng, update=state.update + 1)
     return state, {"bc_loss": bc.mean(), "nonfinite": (~all_finite(state.params)).astype(jnp.float32)}
 

@@ -86,7 +86,7 @@ def run_metadata() -> dict:
                                 cwd=Path(__file__).parent).stdout.strip() or None
     except Exception:  # noqa: BLE001
         commit = None
-    from .cli import deterministic_ops
+    from .xla import deterministic_ops
 
     return {"versions": versions, "git_commit": commit, "python": sys.version.split()[0],
             "platform": platform.platform(), "devices": [str(d) for d in jax.devices()],
@@ -336,7 +336,7 @@ def eval_extra_sets(run_dir: str | Path, extra_sets: dict[str, str | Path]) -> d
 
 
 def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_file: str | Path | None = None,
-             extra_sets: dict[str, str | Path] | None = None, ckpt_batch: int = 1) -> dict:
+             extra_sets: dict[str, str | Path] | None = None, ckpt_batch: int = 1, robustness: bool = False) -> dict:
     """Evaluate every checkpoint of a run; write results.json / results.md and figures into the run dir.
 
     Every checkpoint and seed is evaluated on the test split (replay, interpolation, latent codes) and on the
@@ -348,6 +348,10 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     replay checkpoint; results in results.json's ``extra_sets[name]`` and in RUN/replay-<name>/results.{json,md}.
     ``replay_file``: one more extra set, named after the file's stem. To add sets to a run evaluated already,
     ``eval_extra_sets`` skips the evaluation of every checkpoint.
+
+    ``robustness``: also replay against varied humans (``robustness.ensure_robustness_sets``: the test split's
+    human varied in pace, pauses, path, noise and a change of mind, one extra set ``robust-<variation>`` each) and
+    draw RUN/robustness.png.
 
     ``ckpt_batch`` > 1: that many checkpoints are evaluated in one device program (their parameters stacked on a
     new axis, vmapped; the last group padded), with the same results as one at a time; memory grows with it."""
@@ -366,6 +370,10 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     out_dir = run_dir
     s = build(cfg)
     cfg = s.cfg
+    if robustness:
+        from . import robustness as rb
+
+        sets.update(rb.ensure_robustness_sets(s.env, mix=cfg.mix))
     mgr = ckpt.manager(run_dir)
     steps = _checkpoints_to_evaluate(mgr, every)
     if not steps:
@@ -419,6 +427,10 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     evaluate.save_results(out_dir, res)
     _save_extra_sets(out_dir, res, sets)
     evaluate.write_figures(out_dir, res, lat, np.asarray(s.heldout["strategy"]), s.env.strategy_names)
+    if robustness:
+        from . import robustness as rb
+
+        rb.robustness_figure(res, out_dir / "robustness.png", title=f"{cfg.method} on {cfg.task}: varied humans")
     if "handover_x" in at["interp_metrics"]:  # HR-Handover: where the handovers happened (paper Fig. 4a)
         im = {k: at["interp_metrics"][k] for k in ("handover_x", "handover_y", "handover_z")}
         evaluate.write_handover_spots(out_dir, res, im, at["interp_success"], s.train_metrics)

@@ -15,10 +15,10 @@ EXTRA ?=
 help:
 	@echo "make train [TASK=fetchq|handover|seqmanip] [METHOD=cogail|ma_infogail|ma_gail] [SEEDS=300,400,500] [BUDGET=paper|quick] [RUN=dir]"
 	@echo "make eval RUN=dir | make test | make demos TASK=... | make video RUN=dir | make bench"
+	@echo "make paper [TASKS=fetchq,handover,seqmanip] [METHODS=...] | make install [CPU=1] [DRY_RUN=1]"
 
 $(BIN)/.installed: pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[test]'
 	touch $@
 
@@ -60,8 +60,12 @@ demos: install
 video: install
 	$(BIN)/cogail video --task $(TASK) $(if $(wildcard $(RUN)/config.json),--run $(RUN),) --out $(RUN)/rollouts.gif
 
+# The suite in TEST_WORKERS processes (pytest-xdist), one test file per worker at a time, the heaviest files first
+# (tests/conftest.py). TEST_WORKERS=0 runs it in this process.
+TEST_WORKERS ?= 2
 test: install
-	$(BIN)/python -m pytest -q --durations=15 tests
+	$(BIN)/python -m pytest -q $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder) \
+	  --durations=15 tests
 
 clean:
 	rm -rf runs .pytest_cache

@@ -63,7 +63,7 @@ def _run_rollouts(run: Path, num: int, steps: int | None):
     states0 = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(7), num))
     interp = jax.jit(lambda s0: _rollout_states(env, policy, s0, T))(states0)
     # replay: held-out human trajectories open-loop, the robot from pi_R(s, psi(h)) (the replay protocol's step)
-    r_params, r_norm = load(best.get("replay", latest))
+    r_params, r_norm = params, norm  # the same checkpoint: the one selected on validation
     _, robot_step = evaluate.make_robot_step(cfg, env, s.nets)
     h = s.heldout
     idx = np.arange(num) % len(h["init"])
@@ -98,9 +98,9 @@ def _frames(env, states, num, T):
 def write_video(task: str, out: str | Path, run: str | Path | None = None, num: int = 4, fps: int = 20,
                 steps: int | None = None) -> Path:
     """Scripted demonstrations (``run=None``), or a run's rollouts: the top row interpolation rollouts (codes
-    spread over the code grid, best interpolation checkpoint of the first seed), the bottom row replays (the
-    robot with pi_R(s, psi(h)) against the held-out human trajectories, best replay checkpoint). ``steps``
-    caps the episode length rendered."""
+    spread over the code grid), the bottom row replays (the robot with pi_R(s, psi(h)) against the test human
+    trajectories), both at the checkpoint selected on validation and its best seed there (the latest checkpoint
+    if the run was not evaluated). ``steps`` caps the episode length rendered."""
     import imageio.v2 as imageio
 
     import cogail_envs

@@ -28,7 +28,7 @@ def run_dir(tiny_cfg, tmp_path_factory):
 @pytest.fixture(scope="module")
 def server(run_dir):
     trials = run_dir.parent / "trials.hdf5"
-    srv = play.open_session([run_dir], port=0, trials=trials, max_steps=MAX_STEPS, hz=20, log=lambda *a: None)
+    srv = play.open_study([run_dir], port=0, trials=trials, max_steps=MAX_STEPS, hz=20, log=lambda *a: None)
     thread = threading.Thread(target=srv.serve_forever, kwargs={"poll_interval": 0.1}, daemon=True)
     thread.start()
     yield f"http://127.0.0.1:{srv.server_address[1]}/", trials
@@ -185,7 +185,7 @@ def test_play_help(capsys):
 
 
 def test_blind_order_cycles_through_the_policies(run_dir, tmp_path):
-    srv = play.open_session([run_dir, run_dir], port=0, trials=tmp_path / "t.hdf5", seed=1, log=lambda *a: None)
+    srv = play.open_study([run_dir, run_dir], port=0, trials=tmp_path / "t.hdf5", seed=1, log=lambda *a: None)
     try:
         game = srv.app.game
         assert [p.label for p in game.policies] == ["A", "B"]

@@ -15,7 +15,7 @@ from cogail_jax import checkpoint as ckpt
 from cogail_jax import cli, trainer
 
 # as tests/test_sharding.py: the 2-device subprocesses check layouts, not speed (and share compiled programs
-# through the session's compilation cache: the same flags give the same cache keys)
+# through the test run's compilation cache: the same flags give the same cache keys)
 TWO = "--xla_force_host_platform_device_count=2 --xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false"
 
 

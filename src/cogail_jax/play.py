@@ -172,7 +172,7 @@ def human_position(env, state) -> list[float]:
 
 
 class Game:
-    """One person's session: trials cycle through the policies in shuffled blocks; each finished trial is
+    """One person's study: trials cycle through the policies in shuffled blocks; each finished trial is
     appended to the trials file. Not thread-safe: call it from one thread."""
 
     def __init__(self, env, policies: list[Policy], trials: str | Path, max_steps: int | None = None, seed: int = 0):
@@ -346,7 +346,7 @@ def bind(port: int) -> ThreadingHTTPServer:
     return server
 
 
-def open_session(runs: list[str | Path], task: str | None = None, port: int = 8765, trials: str | Path | None = None,
+def open_study(runs: list[str | Path], task: str | None = None, port: int = 8765, trials: str | Path | None = None,
                  checkpoint: str = "best", max_steps: int | None = None, hz: float = 15.0, seed: int = 0,
                  log=print) -> ThreadingHTTPServer:
     """Check the runs, bind the port, load the policies, compile and warm up; returns the bound server
@@ -403,7 +403,7 @@ def close(server: ThreadingHTTPServer) -> None:
 
 def serve(runs, task=None, port=8765, trials=None, checkpoint="best", max_steps=None, hz=15.0, seed=0) -> int:
     """``cogail play``: serve until Ctrl-C."""
-    server = open_session(runs, task, port, trials, checkpoint, max_steps, hz, seed)
+    server = open_study(runs, task, port, trials, checkpoint, max_steps, hz, seed)
     game = server.app.game
     print(f"cogail play: {game.env.name}, {len(game.policies)} polic{'y' if len(game.policies) == 1 else 'ies'} "
           f"(shown as {', '.join(p.label for p in game.policies)}); trials are appended to {game.trials}", flush=True)
@@ -419,4 +419,4 @@ def serve(runs, task=None, port=8765, trials=None, checkpoint="best", max_steps=
     return 0
 
 
-__all__ = ["serve", "open_session", "close", "Game", "Policy", "human_action", "load_policy", "read_run_config"]
+__all__ = ["serve", "open_study", "close", "Game", "Policy", "human_action", "load_policy", "read_run_config"]

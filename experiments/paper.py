@@ -250,7 +250,8 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
             block += ["", "Replay against varied humans (selected checkpoint, test, %; the last column: the worst "
                       "variation's success over in-distribution replay):", "", *rob]
         if stab:
-            block += ["", "Selected vs last checkpoint (test, %):", "", *stab]
+            rel = os.path.relpath(out / "stability.md", readme.resolve().parent)
+            block += ["", f"Selected vs last checkpoint, every run: [{Path(rel).as_posix()}]({Path(rel).as_posix()})."]
         write_readme_block(readme, "\n".join(block))
 
 

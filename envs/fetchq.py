@@ -28,9 +28,9 @@ reveals it, so a robot that ignores the human fails three episodes in four.
 Action: ``concat(a_H, a_R)``, each (dx, dy) in [-1, 1]; an agent moves ``SPEED * clip(a, -1, 1)`` per
 step (SPEED = 0.23 map units, so a scripted demonstration lasts ~145 steps).
 
-Observation (13): human xy, robot xy, left treasure xy, right treasure xy (all / 8), left door open,
-right door open, human carries, robot carries, t / max_episode_steps. A carried treasure moves with its
-carrier.
+Observation (12): human xy, robot xy, left treasure xy, right treasure xy (all / 8), left door open,
+right door open, human carries, robot carries. A carried treasure moves with its carrier. As in the paper's
+state, no clock: a policy that saw the time step could follow the demonstrators' timing instead of the person.
 """
 from __future__ import annotations
 
@@ -96,13 +96,14 @@ class FetchQuest(CollabEnv):
     init_size = 4
     strategy_names = ("human-helps-first/left", "human-first/left", "human-helps-first/right", "human-first/right")
     discriminator_loss = "bce"
+    spec_tag = "obs12"  # the observation layout (part of the version fingerprint of generated demonstrations)
 
     def __init__(self, max_episode_steps: int = 300):
         self.max_episode_steps = int(max_episode_steps)
 
     @property
     def observation_size(self) -> int:
-        return 13
+        return 12
 
     # ------------------------------------------------------------------ dynamics
     def sample_init(self, rng: jax.Array) -> jax.Array:
@@ -136,21 +137,20 @@ class FetchQuest(CollabEnv):
             "robot_pressed": zero,
         }
         info = {"t": jnp.zeros((), jnp.int32), "truncation": zero}
-        obs = self._obs(pipeline, info["t"])
+        obs = self._obs(pipeline)
         return State(pipeline, obs, zero, zero, metrics, info)
 
     def _doors(self, pos: jax.Array) -> jax.Array:
         d = jnp.linalg.norm(pos[:, None, :] - BUTTONS[None], axis=-1)  # (agent, button)
         return jnp.any(d < BUTTON_R, axis=0).astype(jnp.float32)
 
-    def _obs(self, ps: dict, t: jax.Array) -> jax.Array:
+    def _obs(self, ps: dict) -> jax.Array:
         return jnp.concatenate(
             [
                 ps["pos"].reshape(-1) / MAP,
                 ps["treasure"].reshape(-1) / MAP,
                 ps["doors"],
                 (ps["carry"] >= 0).astype(jnp.float32),
-                (t / self.max_episode_steps)[None].astype(jnp.float32),
             ]
         )
 
@@ -191,7 +191,7 @@ class FetchQuest(CollabEnv):
         new_ps = {"pos": pos, "treasure": treasure, "carry": carry, "doors": new_doors}
         info = dict(state.info, t=t, truncation=truncation)
         return state.replace(
-            pipeline_state=new_ps, obs=self._obs(new_ps, t), reward=success, done=done, metrics=m, info=info
+            pipeline_state=new_ps, obs=self._obs(new_ps), reward=success, done=done, metrics=m, info=info
         )
 
     # ------------------------------------------------------------------ strategies

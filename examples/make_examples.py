@@ -4,7 +4,7 @@
 
 writes (scripted fetchq demonstrations, float32, a few tens of KB each):
 
-* ``fetchq_demos.npz`` -- NumPy arrays: ``obs`` (N, T_max, 13) padded, ``actions`` (N, T_max, 4) = human (dx, dy)
+* ``fetchq_demos.npz`` -- NumPy arrays: ``obs`` (N, T_max, 12) padded, ``actions`` (N, T_max, 4) = human (dx, dy)
   then robot (dx, dy), ``length`` (N,), ``strategy`` (N,), ``init`` (N, 4).
 * ``fetchq_robomimic_style.hdf5`` -- robomimic-like layout with other key names: ``data/traj_<i>/obs/{agent_pos,
   treasure_pos,status}``, one concatenated ``actions``, ``reset_params``, attribute ``strategy_id``.
@@ -58,7 +58,7 @@ def main(num_npz: int = 6, num_hdf5: int = 4) -> None:
             o = eps.obs[i, :n].astype(np.float32)
             g.create_dataset("obs/agent_pos", data=o[:, :4], **kw)
             g.create_dataset("obs/treasure_pos", data=o[:, 4:8], **kw)
-            g.create_dataset("obs/status", data=o[:, 8:], **kw)  # door flags, carried flags, time
+            g.create_dataset("obs/status", data=o[:, 8:], **kw)  # door flags, carried flags
             g.create_dataset("actions", data=actions[i, :n].astype(np.float32), **kw)
             g.create_dataset("reset_params", data=eps.init[i].astype(np.float32))
             g.attrs["strategy_id"] = int(eps.strategy[i])

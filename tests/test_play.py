@@ -110,7 +110,7 @@ def test_play_fetchq_in_the_browser(server, browser):
     with h5py.File(trials, "r") as f:
         assert f.attrs["task"] == "fetchq" and f.attrs["num_demos"] == 2
         d0, d1 = f["data/demo_0"], f["data/demo_1"]
-        assert d0["obs"].shape == (MAX_STEPS, 13)
+        assert d0["obs"].shape == (MAX_STEPS, 12)
         assert d0["actions_human"].shape == d0["actions_robot"].shape == (MAX_STEPS, 2)
         assert d0["init"].shape == (4,)
         assert np.any(np.all(d0["actions_human"][()] == [1.0, 0.0], axis=1))  # the right-arrow steps

@@ -160,3 +160,23 @@ def test_bc_gail_trains_the_human_by_bc_only(tiny_cfg, fetchq, expert):
     assert np.all(log_std[: fetchq.human_action_size] == 0) and np.any(log_std[fetchq.human_action_size:] != 0)
     aux = jax.grad(lambda a: losses.aux_objective(cfg, nets, {**params, "actor": a}, gen_b, exp_b)[0])(params["actor"])
     assert _norm(aux["params"]["human"]) == 0.0 and _norm(aux["params"]["robot"]) > 0
+
+
+@pytest.mark.parametrize("decay", [False, True])
+def test_aux_and_disc_learning_rates_follow_the_switch(decay, tiny_cfg):
+    """aux_lr_decay: the aux and discriminator steps shrink to nothing by the run's end; off: they stay."""
+    import optax
+
+    cfg = tiny_cfg.replace(aux_lr_decay=decay)
+    _, aux, disc = train.make_optimizers(cfg)
+    n = cfg.num_updates * cfg.inner_updates
+    p = {"w": np.ones(3, np.float32)}
+    g = {"w": np.ones(3, np.float32)}
+    for tx in (aux, disc):
+        s = tx.init(p)
+        first, s = tx.update(g, s, p)
+        for _ in range(n - 1):
+            _, s = tx.update(g, s, p)
+        after, _ = tx.update(g, s, p)  # the step after the run's last one
+        ratio = float(np.abs(after["w"]).max() / np.abs(first["w"]).max())
+        assert (ratio < 1e-6) if decay else (ratio > 0.9), ratio

@@ -184,7 +184,7 @@ _demo = st.fixed_dictionaries({
 
 def _write_demo(g, i, d):
     dg = g.create_group(f"demo_{i}")
-    dims = {"obs": 13, "actions_human": 2, "actions_robot": 2}
+    dims = {"obs": 12, "actions_human": 2, "actions_robot": 2}
     for key, dim in dims.items():
         fault = d["fault"] if key == d["key"] else None
         if fault == "drop":

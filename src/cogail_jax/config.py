@@ -80,6 +80,9 @@ class TrainConfig:
     lambda_r: float = 1.0  # our addition: robot-action reconstruction on expert data with psi's code (0 = paper;
     #   without L_a psi's code enters through stop_gradient)
     aux_lr: float = 3e-4
+    # the aux (psi, L_z / L_a / L_r) and discriminator learning rates decay linearly to 0 over the run, as PPO's
+    # does (off = constant, the paper's code)
+    aux_lr_decay: bool = False
     inner_updates: int = 4  # discriminator / psi updates per train step (Algorithm 1's "update step = 1..n")
     inner_batch: int = 256
     # behaviour-cloning pre-training of the co-policy (and of psi, in presets with L_a) on the demonstrations

@@ -80,8 +80,10 @@ def make_optimizers(cfg: TrainConfig):
     total = cfg.num_updates * cfg.ppo_epochs * cfg.num_minibatches
     sched = optax.linear_schedule(cfg.lr, 0.0, total)
     ppo = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(sched, eps=1e-5))
-    aux = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.aux_lr))
-    disc = optax.adam(cfg.disc_lr)
+    inner = cfg.num_updates * (cfg.ppo_epochs * cfg.num_minibatches if cfg.bc_only else cfg.inner_updates)
+    decay = (lambda lr: optax.linear_schedule(lr, 0.0, inner)) if cfg.aux_lr_decay else (lambda lr: lr)
+    aux = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(decay(cfg.aux_lr)))
+    disc = optax.adam(decay(cfg.disc_lr))
     return ppo, aux, disc
 
 

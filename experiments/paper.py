@@ -316,11 +316,14 @@ def main(argv=None) -> int:
     p.add_argument("--readme", default=None, metavar="FILE",
                    help=f"also write the tables into FILE between {BEGIN} and {END}")
     p.add_argument("--nondeterministic", action="store_true", help="allow nondeterministic GPU kernels")
+    p.add_argument("--no-compile-cache", action="store_true",
+                   help="do not keep compiled programs between runs (as `cogail train --no-compile-cache`)")
     a = p.parse_args(argv)
     sys.path.insert(0, str(ROOT.parent / "src"))
-    from cogail_jax.cli import set_deterministic
+    from cogail_jax.cli import enable_compile_cache, set_deterministic
 
     set_deterministic(not a.nondeterministic)  # before JAX starts
+    enable_compile_cache(not a.no_compile_cache)
     extra = parse_sets(a.set)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -30,6 +30,9 @@ if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
     _CACHE = tempfile.mkdtemp(prefix="cogail-test-xla-cache-")
     os.environ["JAX_COMPILATION_CACHE_DIR"] = _CACHE
     atexit.register(shutil.rmtree, _CACHE, ignore_errors=True)
+# The `cogail` commands the tests run (in this process and in subprocesses) keep their compiled programs there
+# too, never in the user's cache folder (cogail_jax.xla.enable_compile_cache).
+os.environ.setdefault("COGAIL_CACHE", os.environ["JAX_COMPILATION_CACHE_DIR"])
 
 import pytest
 

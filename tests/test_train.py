@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cogail_jax import checkpoint as ckpt
-from cogail_jax import data, train, trainer
+from cogail_jax import data, timing, train, trainer
 
 
 @pytest.fixture(scope="module")
@@ -98,9 +98,15 @@ def test_resume_is_exact(tiny_cfg, tmp_path):
     full = trainer.train_run(tiny_cfg, tmp_path / "full", progress=False)
     part = trainer.train_run(tiny_cfg, tmp_path / "part", progress=False, stop_after=2)
     assert ckpt.steps(ckpt.manager(part)) == [0, 2]
+    speed_part = timing.read(part)
     with pytest.raises(trainer.RunError, match="--resume"):
         trainer.train_run(tiny_cfg, tmp_path / "part", progress=False)
     trainer.train_run(tiny_cfg, tmp_path / "part", resume=True, progress=False)
+    speed_resumed = timing.read(part)  # the resumed call's seconds are added to the first call's
+    assert speed_resumed["wall"]["train"] > speed_part["wall"]["train"]
+    assert speed_resumed["phases"]["demos"] > speed_part["phases"]["demos"]
+    assert speed_resumed["phases"]["bc"] == speed_part["phases"]["bc"]  # no BC on resume
+    assert speed_part["env_steps_per_s"] is None and speed_resumed["env_steps_per_s"] > 0  # one call: no steady state
     sa, pa = _final_params(full, tiny_cfg)
     sb, pb = _final_params(part, tiny_cfg)
     assert sa == sb == trainer.total_updates(tiny_cfg)
@@ -118,6 +124,14 @@ def test_resume_is_exact(tiny_cfg, tmp_path):
     assert set(res["per_seed_best"]["replay"]["checkpoint"]) == {"3", "5"}
     assert (full / "results.md").read_text().startswith("# cogail on fetchq")
     assert (full / "strategy_distribution.png").exists() and (full / "latent_map.png").exists()
+
+    # RUN/speed.json: every phase of the training and of the evaluation, in seconds
+    speed = json.loads((full / "speed.json").read_text())
+    assert set(speed["phases"]) == set(timing.PHASES)
+    assert all(isinstance(v, float) and v >= 0 for v in [*speed["phases"].values(), speed["total"]])
+    assert speed["phases"]["eval"] > 0 and speed["total"] >= sum(speed["phases"].values())
+    assert speed["env_steps_per_s"] > 0 and speed["updates"] == trainer.total_updates(tiny_cfg)
+    assert speed["device"] and isinstance(speed["deterministic_ops"], bool) and speed["task"] == "fetchq"
 
 
 def test_bc_pretraining_beats_untrained_policy(tiny_cfg, fetchq):

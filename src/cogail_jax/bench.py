@@ -174,9 +174,29 @@ def add_arguments(p) -> None:
     p.add_argument("--peer-only", action="store_true", help="skip the Co-GAIL train_step rows (env-only and brax)")
     p.add_argument("--unroll", type=int, default=94, help="rollout length per update")
     p.add_argument("--calls", type=int, default=3, help="timed train_step calls per row")
+    p.add_argument("--phases", nargs="+", default=None, metavar="RUN",
+                   help="benchmark nothing: print the seconds of each phase (demos, bc, compile, train, eval, "
+                        "write, total) of these runs, read from RUN/speed.json, as a markdown table")
+
+
+def phases_report(runs) -> str:
+    """The markdown table of the runs' RUN/speed.json (``timing.phases_table``); a run without one is an error."""
+    from . import timing
+    from .trainer import RunError
+
+    records = []
+    for run in runs:
+        rec = timing.read(run)
+        if not rec:
+            raise RunError(f"{run} has no readable {timing.FILE}: train the run with `cogail train` first")
+        records.append((str(run), rec))
+    return timing.phases_table(records)
 
 
 def run_from_args(a) -> None:
+    if a.phases:
+        print(phases_report(a.phases))
+        return
     main(a.task, tuple(int(x) for x in a.sizes.split(",")), a.out, a.env_only, a.steps, not a.no_peer, a.unroll,
          a.calls, not a.peer_only)
 
@@ -184,9 +204,13 @@ def run_from_args(a) -> None:
 def cli(argv=None):
     import argparse
 
+    from .xla import enable_compile_cache
+
     p = argparse.ArgumentParser(prog="python -m cogail_jax.bench", description="Throughput table (env steps/s).")
     add_arguments(p)
-    run_from_args(p.parse_args(argv))
+    a = p.parse_args(argv)
+    enable_compile_cache()
+    run_from_args(a)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ from pathlib import Path
 
 os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 
-from .xla import DETERMINISTIC_FLAG, deterministic_ops, set_deterministic  # noqa: F401 (re-exported)
+from .xla import DETERMINISTIC_FLAG, deterministic_ops, enable_compile_cache, set_deterministic  # noqa: F401
 
 
 def _seeds(text: str) -> tuple[int, ...]:
@@ -51,7 +51,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     t = sub.add_parser("train", help="train a method on a task (resumable)",
                        description="Train with Co-GAIL (or a baseline preset); every seed runs in one vmapped "
-                                   "program. Checkpoints, config and TensorBoard logs go to --run.")
+                                   "program. Checkpoints, config and TensorBoard logs go to --run, and "
+                                   "RUN/speed.json gets the seconds of each phase (demos, bc, compile, train; "
+                                   "eval and write with --eval or `cogail eval`), the env steps/s after "
+                                   "compilation and the device; `cogail bench --phases RUN` tabulates them.")
     t.add_argument("--task", default=None, choices=TASK_NAMES, help="task (default fetchq or the config's)")
     t.add_argument("--method", default=None, choices=METHODS, help="method preset (default cogail)")
     t.add_argument("--seeds", type=_seeds, default=None, help="comma-separated seeds (default 300,400,500)")
@@ -84,7 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "results.json, results.md and figures into the run directory. Reported as the "
                                    "paper does (per column, the checkpoint with the best mean over seeds on test), "
                                    "beside the checkpoint selected on the validation set (reported on test) and "
-                                   "the last checkpoint.")
+                                   "the last checkpoint. The seconds spent go into RUN/speed.json (eval, write).")
     e.add_argument("--run", required=True, help="run directory")
     e.add_argument("--every", type=_positive, default=1, help="evaluate every k-th checkpoint (default 1: all)")
     e.add_argument("--replay-file", action="append", default=[], metavar="FILE.hdf5",
@@ -127,7 +130,8 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="throughput table: env-only, Co-GAIL train_step (1 and 3 seeds), brax PPO",
                        description="Env steps/s of the task alone (random actions), of the full Co-GAIL update "
                                    "with 1 and 3 vmapped seeds, and of brax's PPO on the same env and batch; "
-                                   "prints a table and writes JSON.")
+                                   "prints a table and writes JSON. With --phases RUN [RUN ...]: no benchmark, "
+                                   "the seconds of each phase of those runs (their speed.json) as a markdown table.")
     from .bench import add_arguments as _bench_args
 
     _bench_args(b)
@@ -175,6 +179,11 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument("--nondeterministic", action="store_true",
                         help="allow nondeterministic GPU kernels (faster; by default XLA_FLAGS gets "
                              "--xla_gpu_deterministic_ops=true, recorded in run_info.json)")
+        sp.add_argument("--no-compile-cache", action="store_true",
+                        help="do not keep compiled programs between runs (by default they are kept in "
+                             "$COGAIL_CACHE, else in a JAX_COMPILATION_CACHE_DIR of your own, else in "
+                             "$XDG_CACHE_HOME/cogail/xla or ~/.cache/cogail/xla, and a second run loads them "
+                             "instead of compiling; also COGAIL_NO_COMPILE_CACHE=1)")
     return p
 
 
@@ -244,6 +253,7 @@ def _config_from_args(a) -> "TrainConfig":  # noqa: F821
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     set_deterministic(not getattr(args, "nondeterministic", False))  # before JAX starts its backend
+    enable_compile_cache(not getattr(args, "no_compile_cache", False))  # before anything compiles
     from cogail_envs import UnknownTaskError
 
     from .checkpoint import CheckpointError

@@ -15,7 +15,7 @@ import jax
 import numpy as np
 
 from . import checkpoint as ckpt
-from . import data, evaluate, train
+from . import data, evaluate, timing, train
 from .config import ConfigError, TrainConfig
 
 
@@ -154,27 +154,32 @@ def place_on_devices(state, expert, devices, num_seeds):
     return state, expert
 
 
-def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True,
-              stop_after: int | None = None, devices: str | int | None = None) -> Path:
-    """Train (or resume) a run; returns the run directory. ``stop_after`` stops early after that many updates
-    (tests use it to simulate an interrupted run)."""
-    run_dir = Path(run_dir)
-    cfg = prepare_run_dir(cfg, run_dir, resume)
-    from .devices import cpu_warning, describe_devices  # where it runs; a CPU warning for paper-sized MJX runs
-    print("\n".join([describe_devices(), *cpu_warning(cfg)]), flush=True)
-    s = build(cfg, need_heldout=False)
+@dataclass
+class LoopStats:
+    """What the training loop did: the update reached, each call's seconds (the first compiles), and the env
+    steps and seconds after the first call (the steady state)."""
+    update: int
+    call_seconds: list[float]
+    loop_seconds: float = 0.0
+    steady_steps: int = 0
+    steady_seconds: float = 0.0
+
+
+def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: timing.Phases):
+    """The state training starts from (restored on resume, else fresh with BC pre-training, timed as ``bc``),
+    placed on the devices; returns (state, first update)."""
     cfg = s.cfg
-    mgr = ckpt.manager(run_dir)
-    abstract = jax.eval_shape(lambda: s.init(cfg.seeds, s.expert))
     state, start = None, 0
     if resume:  # restored onto this process's first device, whatever layout saved it; placed below
+        abstract = jax.eval_shape(lambda: s.init(cfg.seeds, s.expert))
         step, state = ckpt.restore_latest_valid(mgr, abstract)
         if step is not None:
             start = step
             print(f"resuming {run_dir} from update {step}", flush=True)
     fresh = state is None
     if fresh:
-        state = s.init(cfg.seeds, s.expert)
+        with clock("bc"):
+            state = jax.block_until_ready(s.init(cfg.seeds, s.expert))
     state, s.expert = place_on_devices(state, s.expert, devices, len(cfg.seeds))
     here = ckpt.layout(state)
     if fresh:
@@ -186,49 +191,77 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
             print(f"restored {len(cfg.seeds)} seeds saved on {ckpt.describe(saved)} onto {ckpt.describe(here)}",
                   flush=True)
     ckpt.record_layout(run_dir, here, start)
-    total = total_updates(cfg)
-    upc = cfg.updates_per_call
+    return state, start
+
+
+def _postfix(metrics: dict, stats: LoopStats) -> dict:
+    el = stats.steady_seconds
+    post = {"env_steps/s": f"{stats.steady_steps / el:.3g}" if el > 0 and stats.steady_steps else "-"}
+    for key, short in (("episode_success", "succ"), ("disc_loss", "d_loss"), ("loss_z", "L_z"),
+                       ("loss_a", "L_a"), ("bc_loss", "bc")):
+        if key in metrics:
+            post[short] = f"{metrics[key][-1].mean():.3f}"
+    return post
+
+
+def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool, stop_after: int | None):
+    """Call the jitted chunk until the budget (or ``stop_after``), logging and checkpointing; returns LoopStats."""
     from tensorboardX import SummaryWriter
     from tqdm import tqdm
 
+    cfg, upc, total = s.cfg, s.cfg.updates_per_call, total_updates(s.cfg)
     writers = [SummaryWriter(str(run_dir / "tb" / f"seed_{sd}")) for sd in cfg.seeds]
     bar = tqdm(total=total, initial=start, unit="upd", disable=not progress, dynamic_ncols=True, file=sys.stdout)
-    update, t_start, steps_done = start, None, 0
+    stats, t_loop = LoopStats(start, []), time.perf_counter()
     try:
-        while update < total:
-            if stop_after is not None and update >= stop_after:
-                break
+        while stats.update < total and (stop_after is None or stats.update < stop_after):
+            t0 = time.perf_counter()
             state, metrics = s.chunk(state, s.expert)
             metrics = jax.device_get(metrics)
-            if t_start is None:  # first call includes compilation
-                t_start = time.time()
-            else:
-                steps_done += upc * cfg.steps_per_update * len(cfg.seeds)
+            stats.call_seconds.append(time.perf_counter() - t0)
+            if len(stats.call_seconds) > 1:  # the first call includes compilation
+                stats.steady_steps += upc * cfg.steps_per_update * len(cfg.seeds)
             if np.any(metrics["nonfinite"] > 0):
-                u = update + int(np.argmax(np.any(metrics["nonfinite"] > 0, axis=1))) + 1
+                u = stats.update + int(np.argmax(np.any(metrics["nonfinite"] > 0, axis=1))) + 1
                 raise RunError(f"training diverged at update {u} (non-finite parameters); the last good "
                                f"checkpoint (update {max(ckpt.steps(mgr))}) is kept: lower --lr or change the seed")
-            _log_scalars(writers, metrics, update, cfg.steps_per_update)
-            update += upc
-            if update % cfg.checkpoint_every == 0 or update >= total:
-                ckpt.save(mgr, update, state)
-            el = time.time() - t_start
+            _log_scalars(writers, metrics, stats.update, cfg.steps_per_update)
+            stats.update += upc
+            if stats.update % cfg.checkpoint_every == 0 or stats.update >= total:
+                ckpt.save(mgr, stats.update, state)
+            stats.loop_seconds = time.perf_counter() - t_loop
+            stats.steady_seconds = stats.loop_seconds - stats.call_seconds[0]
             bar.update(upc)
-            post = {"env_steps/s": f"{steps_done / el:.3g}" if el > 0 and steps_done else "-"}
-            for key, short in (("episode_success", "succ"), ("disc_loss", "d_loss"), ("loss_z", "L_z"),
-                               ("loss_a", "L_a"), ("bc_loss", "bc")):
-                if key in metrics:
-                    post[short] = f"{metrics[key][-1].mean():.3f}"
-            bar.set_postfix(post)
+            bar.set_postfix(_postfix(metrics, stats))
     finally:
         bar.close()
         for w in writers:
             w.close()
-    if t_start is not None and steps_done:
-        el = time.time() - t_start
-        (run_dir / "speed.json").write_text(json.dumps(
-            {"env_steps_per_s": steps_done / el, "seconds_after_compile": el, "updates": update,
-             "seeds": len(cfg.seeds), "steps_per_update": cfg.steps_per_update}, indent=2))
+    return stats
+
+
+def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True,
+              stop_after: int | None = None, devices: str | int | None = None) -> Path:
+    """Train (or resume) a run; returns the run directory. ``stop_after`` stops early after that many updates
+    (tests use it to simulate an interrupted run). Records the time of each phase in RUN/speed.json
+    (``timing``; a resumed run adds to it)."""
+    clock = timing.Phases()
+    run_dir = Path(run_dir)
+    cfg = prepare_run_dir(cfg, run_dir, resume)
+    from .devices import cpu_warning, describe_devices  # where it runs; a CPU warning for paper-sized MJX runs
+    print("\n".join([describe_devices(), *cpu_warning(cfg)]), flush=True)
+    with clock("demos"):
+        s = build(cfg, need_heldout=False)
+    mgr = ckpt.manager(run_dir)
+    state, start = _start_state(s, mgr, run_dir, resume, devices, clock)
+    stats = _train_loop(s, state, mgr, run_dir, start, progress, stop_after)
+    compile_s = timing.compile_estimate(stats.call_seconds)
+    clock.add("compile", compile_s)
+    clock.add("train", stats.loop_seconds - compile_s)
+    timing.write(run_dir, timing.merge_train(
+        timing.read(run_dir) if resume else {}, clock, stats.steady_steps, stats.steady_seconds, resume,
+        task=s.cfg.task, method=s.cfg.method, updates=stats.update, seeds=len(s.cfg.seeds),
+        steps_per_update=s.cfg.steps_per_update, **timing.device_info()))
     return run_dir
 
 
@@ -354,11 +387,36 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     draw RUN/robustness.png.
 
     ``ckpt_batch`` > 1: that many checkpoints are evaluated in one device program (their parameters stacked on a
-    new axis, vmapped; the last group padded), with the same results as one at a time; memory grows with it."""
+    new axis, vmapped; the last group padded), with the same results as one at a time; memory grows with it.
+
+    The seconds spent evaluating and writing replace the ``eval`` and ``write`` phases of RUN/speed.json."""
+    clock = timing.Phases()
     run_dir = Path(run_dir)
     if not (run_dir / "config.json").exists():
         raise RunError(f"{run_dir} is not a run directory (no config.json): pass the --run of a training run")
-    sets = _extra_sets(extra_sets, replay_file)
+    with clock("eval"):
+        s, sets = _eval_setup(run_dir, _extra_sets(extra_sets, replay_file), robustness)
+        mgr = ckpt.manager(run_dir)
+        steps = _checkpoints_to_evaluate(mgr, every)
+        if not steps:
+            raise RunError(f"{run_dir} has no checkpoints yet: train it first")
+        abstract = jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert))
+        held, part = evaluate.stack_sets({"test": s.heldout, "validation": s.validation})
+        per_ckpt, codes = _evaluate_checkpoints(s, mgr, abstract, steps, held, part, ckpt_batch, progress)
+        if not per_ckpt:
+            raise ckpt.nothing_restored(mgr, run_dir)
+        res, at, lat = _summarize(s, per_ckpt, codes, part)
+        if sets:
+            res["extra_sets"] = _replay_extra_sets(s, mgr, abstract, res, sets)
+    with clock("write"):
+        _write_eval_outputs(run_dir, s, res, at, lat, sets, robustness)
+    timing.write(run_dir, timing.merge_eval(timing.read(run_dir), clock, **timing.device_info()))
+    return res
+
+
+def _eval_setup(run_dir: Path, sets: dict[str, str], robustness: bool) -> tuple[Setup, dict[str, str]]:
+    """The run's set-up with the test and validation splits, and the extra sets to replay: ``sets``, those of an
+    earlier evaluation whose files still exist, and with ``robustness`` the varied humans (made if missing)."""
     try:  # the extra sets of an earlier evaluation are evaluated again at the new checkpoints
         prev = json.loads((run_dir / "results.json").read_text()).get("extra_sets") or {}
     except (OSError, ValueError, AttributeError):
@@ -366,24 +424,23 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     for name, e in prev.items():
         if name not in sets and isinstance(e, dict) and e.get("file") and Path(e["file"]).exists():
             sets[name] = e["file"]
-    cfg = TrainConfig.load(run_dir / "config.json")
-    out_dir = run_dir
-    s = build(cfg)
-    cfg = s.cfg
+    s = build(TrainConfig.load(run_dir / "config.json"))
     if robustness:
         from . import robustness as rb
 
-        sets.update(rb.ensure_robustness_sets(s.env, mix=cfg.mix))
-    mgr = ckpt.manager(run_dir)
-    steps = _checkpoints_to_evaluate(mgr, every)
-    if not steps:
-        raise RunError(f"{run_dir} has no checkpoints yet: train it first")
-    abstract = jax.eval_shape(lambda: s.init(cfg.seeds, s.expert))
-    seeds_eval, codes = evaluate.make_eval_fns(cfg, s.env, s.nets)
-    held, part = evaluate.stack_sets({"test": s.heldout, "validation": s.validation})
-    per_ckpt = {}
+        sets.update(rb.ensure_robustness_sets(s.env, mix=s.cfg.mix))
+    return s, sets
+
+
+def _evaluate_checkpoints(s: Setup, mgr, abstract, steps: list[int], held: dict, part: dict, ckpt_batch: int,
+                          progress: bool) -> tuple[dict, object]:
+    """{step: _split_sets(...)} for every checkpoint that restores (``ckpt_batch`` of them per device call), and
+    the interpolation codes."""
     from tqdm import tqdm
 
+    cfg = s.cfg
+    seeds_eval, codes = evaluate.make_eval_fns(cfg, s.env, s.nets)
+    per_ckpt = {}
     ckpt_batch = max(1, min(int(ckpt_batch), len(steps)))
     many = evaluate.make_checkpoints_eval_fn(cfg, s.env, s.nets) if ckpt_batch > 1 else None
     bar = tqdm(total=len(steps), desc="eval", disable=not progress, file=sys.stdout)
@@ -409,8 +466,13 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
             for j, (step, _) in enumerate(group):
                 per_ckpt[step] = _split_sets(jax.tree.map(lambda x: x[j], out), part)
     bar.close()
-    if not per_ckpt:
-        raise ckpt.nothing_restored(mgr, run_dir)
+    return per_ckpt, codes
+
+
+def _summarize(s: Setup, per_ckpt: dict, codes, part: dict):
+    """The reported figures (``evaluate.summarize``) with the splits and the latent map; returns (results, the
+    selected checkpoint's evaluation, its latent codes or None)."""
+    cfg = s.cfg
     res = evaluate.summarize(cfg.task, cfg.method, cfg.seeds, per_ckpt, s.env.strategy_names, codes,
                              heldout_strategy=s.heldout["strategy"])
     res["splits"] = {name: {"file": s.files[name], "episodes": int(part[name].stop - part[name].start)}
@@ -421,8 +483,12 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     res["latent_map"] = {"seed": int(cfg.seeds[i0]), "checkpoint": res["breakdowns_at"]["checkpoint"],
                          "codes": None if lat is None else lat.tolist(),
                          "strategy": np.asarray(s.heldout["strategy"]).tolist()}
-    if sets:
-        res["extra_sets"] = _replay_extra_sets(s, mgr, abstract, res, sets)
+    return res, at, lat
+
+
+def _write_eval_outputs(out_dir: Path, s: Setup, res: dict, at: dict, lat, sets: dict, robustness: bool) -> None:
+    """results.json / results.md, each extra set's results and the figures."""
+    cfg = s.cfg
     out_dir.mkdir(parents=True, exist_ok=True)
     evaluate.save_results(out_dir, res)
     _save_extra_sets(out_dir, res, sets)
@@ -434,7 +500,6 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     if "handover_x" in at["interp_metrics"]:  # HR-Handover: where the handovers happened (paper Fig. 4a)
         im = {k: at["interp_metrics"][k] for k in ("handover_x", "handover_y", "handover_z")}
         evaluate.write_handover_spots(out_dir, res, im, at["interp_success"], s.train_metrics)
-    return res
 
 
 __all__ = ["train_run", "eval_run", "eval_extra_sets", "RunError", "ConfigError", "build"]

@@ -1,7 +1,11 @@
-"""XLA flags the `cogail` commands set before JAX starts its backend: deterministic GPU execution."""
+"""What the `cogail` commands set up before JAX compiles anything: deterministic GPU execution (XLA flags) and
+the persistent compilation cache."""
 from __future__ import annotations
 
 import os
+import sys
+from pathlib import Path
+from typing import Mapping
 
 DETERMINISTIC_FLAG = "--xla_gpu_deterministic_ops"
 
@@ -28,3 +32,44 @@ def deterministic_ops() -> bool:
     vals = [f.split("=", 1)[1] if "=" in f else "true" for f in os.environ.get("XLA_FLAGS", "").split()
             if f.split("=", 1)[0] == DETERMINISTIC_FLAG]
     return bool(vals) and vals[-1].lower() in ("true", "1")
+
+
+NO_CACHE_ENV = "COGAIL_NO_COMPILE_CACHE"
+MIN_COMPILE_SECONDS = 1.0  # programs that compile faster are not worth a file
+
+
+def compile_cache_dir(env: Mapping[str, str] | None = None, jax_dir: str | None = None) -> Path | None:
+    """Where compiled programs are kept between runs: $COGAIL_CACHE, else a JAX_COMPILATION_CACHE_DIR already
+    configured (``jax_dir``), else $XDG_CACHE_HOME/cogail/xla, else ~/.cache/cogail/xla; None when
+    $COGAIL_NO_COMPILE_CACHE is 1 (or true, yes, on)."""
+    env = os.environ if env is None else env
+    if env.get(NO_CACHE_ENV, "").strip().lower() in ("1", "true", "yes", "on"):
+        return None
+    if env.get("COGAIL_CACHE"):
+        return Path(env["COGAIL_CACHE"]).expanduser()
+    if jax_dir:
+        return Path(jax_dir).expanduser()
+    base = Path(env["XDG_CACHE_HOME"]).expanduser() if env.get("XDG_CACHE_HOME") else Path.home() / ".cache"
+    return base / "cogail" / "xla"
+
+
+def enable_compile_cache(on: bool = True) -> Path | None:
+    """Point JAX's persistent compilation cache at ``compile_cache_dir()`` (programs that take at least
+    ``MIN_COMPILE_SECONDS`` to compile are stored, and a later run loads them instead of compiling), the default
+    of every ``cogail`` command; ``on=False`` (``--no-compile-cache``) leaves JAX's settings as they are. Call it
+    before the first compilation. Returns the folder, or None when off or when the folder cannot be made."""
+    import jax
+
+    path = compile_cache_dir(jax_dir=jax.config.jax_compilation_cache_dir) if on else None
+    if path is None:
+        return None
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        print(f"warning: no compilation cache ({path}: {e.strerror}); set COGAIL_CACHE to a writable folder",
+              file=sys.stderr)
+        return None
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    return path

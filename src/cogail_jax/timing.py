@@ -1,0 +1,140 @@
+"""Where a run's wall-clock time goes: RUN/speed.json, written by ``cogail train`` and ``cogail eval``.
+
+Phases, in seconds (``PHASES``):
+
+* ``demos``: loading (or generating and caching) the training demonstrations and building the programs;
+* ``bc``: the initial state and behaviour-cloning pre-training, their compilation included (0 on resume);
+* ``compile``: the first training call minus a steady-state call (the median of the later calls; the whole first
+  call when there is only one);
+* ``train``: the rest of the training loop (rollouts, updates, logs, checkpoints);
+* ``eval``: evaluating the checkpoints (the test and validation splits loaded, the varied humans made);
+* ``write``: writing results.json / results.md and the figures.
+
+``total`` is the wall-clock of the commands (set-up included, so a little more than the phases' sum). A resumed
+training adds its seconds to the earlier ones; an evaluation replaces the earlier evaluation's. The record also
+holds the training's env steps/s after compilation, the device and whether deterministic GPU execution was on.
+"""
+from __future__ import annotations
+
+import json
+import statistics
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+PHASES = ("demos", "bc", "compile", "train", "eval", "write")
+TRAIN_PHASES = ("demos", "bc", "compile", "train")
+EVAL_PHASES = ("eval", "write")
+FILE = "speed.json"
+
+
+class Phases:
+    """Wall seconds per named phase: ``with clock("bc"): ...`` (a phase timed twice adds up); ``elapsed()`` is
+    the time since the clock was made."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+        self._t0 = time.perf_counter()
+
+    @contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.add(name, time.perf_counter() - t0)
+
+    def add(self, name: str, seconds: float) -> None:
+        self.seconds[name] = self.seconds.get(name, 0.0) + max(0.0, float(seconds))
+
+    def elapsed(self) -> float:
+        return time.perf_counter() - self._t0
+
+
+def compile_estimate(call_seconds: list[float]) -> float:
+    """Compilation in the first of several timed calls: its excess over the median later call."""
+    if not call_seconds:
+        return 0.0
+    if len(call_seconds) == 1:
+        return call_seconds[0]
+    return max(0.0, call_seconds[0] - statistics.median(call_seconds[1:]))
+
+
+def read(run_dir: str | Path) -> dict:
+    """RUN/speed.json, or {} when it is missing or unreadable."""
+    try:
+        rec = json.loads((Path(run_dir) / FILE).read_text())
+    except (OSError, ValueError):
+        return {}
+    return rec if isinstance(rec, dict) else {}
+
+
+def write(run_dir: str | Path, record: dict) -> Path:
+    path = Path(run_dir) / FILE
+    path.write_text(json.dumps(record, indent=2))
+    return path
+
+
+def _finish(rec: dict) -> dict:
+    rec["phases"] = {p: float(rec.get("phases", {}).get(p, 0.0)) for p in PHASES}
+    rec["total"] = float(sum(rec.get("wall", {}).values()))
+    return rec
+
+
+def merge_train(old: dict, clock: Phases, steady_steps: int, steady_seconds: float, resumed: bool,
+                **info) -> dict:
+    """The record after a training call: ``clock``'s training phases (added to ``old``'s when ``resumed``, else
+    replacing ``old``), the env steps and seconds after compilation, and ``info`` (task, device, ...)."""
+    rec = dict(old) if resumed else {}
+    phases = dict(rec.get("phases", {}))
+    wall = dict(rec.get("wall", {}))
+    for p in TRAIN_PHASES:
+        phases[p] = phases.get(p, 0.0) + clock.seconds.get(p, 0.0)
+    wall["train"] = wall.get("train", 0.0) + clock.elapsed()
+    steps = int(rec.get("train_env_steps", 0)) + int(steady_steps)
+    secs = float(rec.get("seconds_after_compile", 0.0)) + float(steady_seconds)
+    rec.update(info, phases=phases, wall=wall, train_env_steps=steps, seconds_after_compile=secs,
+               env_steps_per_s=steps / secs if steps and secs > 0 else None)
+    return _finish(rec)
+
+
+def merge_eval(old: dict, clock: Phases, **info) -> dict:
+    """The record after an evaluation: ``clock``'s eval and write phases replace ``old``'s."""
+    rec = dict(old)
+    phases = dict(rec.get("phases", {}))
+    phases.update({p: clock.seconds.get(p, 0.0) for p in EVAL_PHASES})
+    rec.update(info, phases=phases, wall={**rec.get("wall", {}), "eval": clock.elapsed()})
+    return _finish(rec)
+
+
+def device_info() -> dict:
+    """The device a record was measured on and whether deterministic GPU execution was on."""
+    import jax
+
+    from .xla import deterministic_ops
+
+    devs = jax.devices()
+    return {"device": devs[0].device_kind, "device_count": len(devs), "platform": devs[0].platform,
+            "deterministic_ops": deterministic_ops()}
+
+
+def _cell(x) -> str:
+    return "-" if not isinstance(x, (int, float)) or isinstance(x, bool) else f"{x:.1f}"
+
+
+def phases_table(records: list[tuple[str, dict]]) -> str:
+    """A markdown table, one row per (run name, speed.json record): seconds per phase, total, env steps/s."""
+    head = ["run", "task", *PHASES, "total", "env steps/s"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for name, rec in records:
+        ph = rec.get("phases") or {}
+        sps = rec.get("env_steps_per_s")
+        row = [name, str(rec.get("task", "-")), *(_cell(ph.get(p)) for p in PHASES), _cell(rec.get("total")),
+               f"{sps:.3g}" if isinstance(sps, (int, float)) else "-"]
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+__all__ = ["PHASES", "Phases", "compile_estimate", "read", "write", "merge_train", "merge_eval", "device_info",
+           "phases_table"]

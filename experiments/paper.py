@@ -90,7 +90,10 @@ def fmt(d) -> str:
 
 def figures(res: dict | None, column: str) -> tuple[str, str]:
     """(selected on validation, paper protocol) of one run for ``column`` replay / interpolation, formatted;
-    results made before the protocol (no paper_protocol key) give "-"."""
+    results made before the protocol (no paper_protocol key) give "-"; BC-single has no co-policy human to
+    interpolate with ("n/a")."""
+    if column == "interpolation" and (res or {}).get("method") == "bc_single":
+        return "n/a", "n/a"
     if not res or "paper_protocol" not in res:
         return "-", "-"
     sel = (res.get("selected") or {}).get(column)
@@ -115,7 +118,7 @@ def table(results: dict, tasks, methods, column: str, paper: dict) -> list[str]:
 PROTOCOL_NOTE = ("Success rates in %, mean +- std over seeds, on the test split. *selected*: the checkpoint with "
                  "the best mean validation replay success, reported on test (nothing chosen on test). *paper "
                  "protocol*: as the paper reports, the checkpoint with the best mean over seeds on test, per column. "
-                 "*paper*: the paper's figure.")
+                 "*paper*: the paper's figure. -: not measured.")
 
 
 def fig3_rows(results: dict, methods) -> list[str]:
@@ -199,8 +202,9 @@ def stability_rows(results: dict) -> list[str]:
         r = results[k]
         if not r.get("selected") or not r.get("last"):
             continue
-        lines.append(f"| {k} | {fmt(r['selected']['replay'])} | {fmt(r['last']['replay'])} | "
-                     f"{fmt(r['selected']['interpolation'])} | {fmt(r['last']['interpolation'])} |")
+        interp = ("n/a", "n/a") if r.get("method") == "bc_single" else \
+            (fmt(r["selected"]["interpolation"]), fmt(r["last"]["interpolation"]))
+        lines.append(f"| {k} | {fmt(r['selected']['replay'])} | {fmt(r['last']['replay'])} | {interp[0]} | {interp[1]} |")
     return lines if len(lines) > 2 else []
 
 
@@ -247,8 +251,11 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
         if var:
             block += ["", "Variants of the shipped settings (test, %):", "", *var]
         if rob:
-            block += ["", "Replay against varied humans (selected checkpoint, test, %; the last column: the worst "
-                      "variation's success over in-distribution replay):", "", *rob]
+            rel = Path(os.path.relpath(out / "robustness.md", readme.resolve().parent)).as_posix()
+            mine = rob[:2] + [r for r in rob[2:] if r.split("|")[2].strip() == "cogail"]
+            block += ["", "Co-GAIL's replay against varied humans (selected checkpoint, test, %; the last column: the "
+                      f"worst variation's success over in-distribution replay; every method: [{rel}]({rel})):", "",
+                      *mine]
         if stab:
             rel = os.path.relpath(out / "stability.md", readme.resolve().parent)
             block += ["", f"Selected vs last checkpoint, every run: [{Path(rel).as_posix()}]({Path(rel).as_posix()})."]

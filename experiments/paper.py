@@ -168,6 +168,45 @@ def fig3_png(results: dict, methods, path: Path) -> bool:
     return True
 
 
+def curves_png(results: dict, path: Path, method: str = "cogail") -> bool:
+    """Learning curves of ``method`` per task (its variants beside it): replay and interpolation success on test
+    against updates, mean +- std over seeds, the checkpoint selected on validation dotted."""
+    keys = sorted(k for k in results if k.split("/")[1] == method and k.split("/")[2] == "uniform"
+                  and (results[k].get("curves") or {}).get("replay_success"))
+    tasks = [t for t in ("fetchq", "handover", "seqmanip") if any(k.startswith(t + "/") for k in keys)]
+    if not tasks:
+        return False
+    import matplotlib
+    import numpy as np
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, len(tasks), figsize=(4.2 * len(tasks), 5.5), squeeze=False)
+    for j, t in enumerate(tasks):
+        for k in (k for k in keys if k.startswith(t + "/")):
+            r, label = results[k], "/".join(k.split("/")[3:]) or "main table"
+            x = np.asarray(r["checkpoints"])
+            for i, col in enumerate(("replay_success", "interpolation_success")):
+                y = 100 * np.asarray(r["curves"][col], float)  # (seeds, checkpoints)
+                line, = axes[i, j].plot(x, y.mean(0), label=label)
+                axes[i, j].fill_between(x, y.mean(0) - y.std(0), y.mean(0) + y.std(0), alpha=0.2,
+                                        color=line.get_color())
+                sel = (r.get("selected") or {}).get("checkpoint")
+                if sel is not None:
+                    axes[i, j].axvline(sel, ls=":", color=line.get_color())
+        axes[0, j].set_title(f"{t}: {method}")
+        for i, name in enumerate(("replay success (%)", "interpolation success (%)")):
+            axes[i, j].set_ylabel(name)
+            axes[i, j].set_ylim(0, 100)
+        axes[1, j].set_xlabel("update")
+        axes[0, j].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
 def _pct(d) -> str:
     return f"{100 * d['mean']:.1f}" if d else "-"
 
@@ -235,6 +274,7 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
     (out / "table2_interpolation.md").write_text("# Table 2: interpolation success (%)\n\n" + PROTOCOL_NOTE
                                                  + "\n\n" + "\n".join(t2) + "\n")
     has_png = fig3_png(results, methods, out / "fig3_strategies.png")
+    has_curves = curves_png(results, out / "curves.png")
     if f3:
         (out / "fig3_strategies.md").write_text(
             "# Fig. 3: strategies among successful fetchq interpolation rollouts (%)\n\n" + "\n".join(f3) + "\n")
@@ -243,13 +283,18 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
         block = ["Table 1, replay success (%):", "", *t1, "", "Table 2, interpolation success (%):", "", *t2, "",
                  PROTOCOL_NOTE]
         if f3:
-            block += ["", "Fig. 3, strategies among successful fetchq interpolation rollouts (%; the paper gives a "
-                      "plot, no numbers):", "", *f3]
+            rel3 = Path(os.path.relpath(out / "fig3_strategies.md", readme.resolve().parent)).as_posix()
+            block += ["", "Fig. 3, strategies among successful fetchq interpolation rollouts on the unbalanced "
+                      f"mixtures D1 and D2 (the paper gives a plot, no numbers; the shares: [{rel3}]({rel3})):"]
             if has_png:
                 rel = os.path.relpath(out / "fig3_strategies.png", readme.resolve().parent)
                 block += ["", f"![Fig. 3: strategy shares on D1 and D2]({Path(rel).as_posix()})"]
         if var:
             block += ["", "Variants of the shipped settings (test, %):", "", *var]
+        if has_curves:
+            rel = Path(os.path.relpath(out / "curves.png", readme.resolve().parent)).as_posix()
+            block += ["", "Learning curves (test, mean +- std over seeds; dotted: the checkpoint selected on "
+                      "validation):", "", f"![Co-GAIL learning curves]({rel})"]
         if rob:
             rel = Path(os.path.relpath(out / "robustness.md", readme.resolve().parent)).as_posix()
             mine = rob[:2] + [r for r in rob[2:] if r.split("|")[2].strip() == "cogail"]

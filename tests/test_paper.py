@@ -119,3 +119,25 @@ def test_runs_are_cached_by_their_full_resolved_config(tmp_path, monkeypatch, ca
     assert paper.run_dir(tmp_path, base).name.startswith("fetchq-cogail-uniform-")
     assert paper.config_hash(base) == paper.config_hash(base.replace())
     assert paper.parse_sets(["reward_norm=false"]) == {"reward_norm": False}
+
+
+def test_bc_single_has_no_interpolation_figure(tmp_path):
+    results = {"fetchq/bc_single/uniform": {**_res(0.4, 0.45, 0.0, 0.0), "method": "bc_single"},
+               "fetchq/cogail/uniform": {**_res(0.55, 0.6), "method": "cogail"}}
+    paper.tables(results, ["fetchq"], ["bc_single", "cogail"], tmp_path)
+    assert "| bc_single | 40.0 +- 1.0 | 45.0 +- 2.0 | 21.1 +- 1.9 |" in (tmp_path / "table1_replay.md").read_text()
+    assert "| bc_single | n/a | n/a | - |" in (tmp_path / "table2_interpolation.md").read_text()
+    assert "| fetchq/bc_single/uniform | 40.0 +- 1.0 | 40.0 +- 1.0 | n/a | n/a |" in \
+        (tmp_path / "stability.md").read_text()
+
+
+def test_learning_curves_figure(tmp_path):
+    curves = {"replay_success": [[0.1, 0.5, 0.4], [0.2, 0.6, 0.5]],
+              "interpolation_success": [[0.0, 0.3, 0.2], [0.1, 0.4, 0.3]]}
+    with_curves = {**_res(0.55, 0.6), "checkpoints": [10, 20, 30], "curves": curves}
+    assert not paper.curves_png({"fetchq/cogail/uniform": _res(0.55, 0.6)}, tmp_path / "none.png")
+    assert not (tmp_path / "none.png").exists()
+    results = {"fetchq/cogail/uniform": with_curves, "fetchq/cogail/uniform/variant": with_curves,
+               "handover/ma_gail/uniform": with_curves}  # another method: not drawn
+    assert paper.curves_png(results, tmp_path / "curves.png")
+    assert (tmp_path / "curves.png").stat().st_size > 10_000

@@ -91,14 +91,15 @@ class CollabEnv(Env):
 
     @property
     def version(self) -> str:
-        """A fingerprint of the task's dynamics and observation layout (MJCF, substeps, spec_tag), stored in generated
-        demonstration files: cached default demonstrations made under other physics are regenerated."""
+        """A fingerprint of the task's dynamics and observation layout (MJCF, substeps, ``spec_tag``), stored in
+        generated demonstration files: cached default demonstrations made under other physics are regenerated."""
         import hashlib
 
-        spec = f"{self.name}|{getattr(self, 'xml', '')}|{getattr(self, 'n_substeps', '')}|{self.max_episode_steps}"
+        parts = (self.name, getattr(self, "xml", ""), getattr(self, "n_substeps", ""), self.max_episode_steps)
+        fingerprint = "|".join(str(p) for p in parts)
         if getattr(self, "spec_tag", ""):
-            spec += f"|{self.spec_tag}"
-        return hashlib.sha1(spec.encode()).hexdigest()[:12]
+            fingerprint += f"|{self.spec_tag}"
+        return hashlib.sha1(fingerprint.encode()).hexdigest()[:12]
 
     def split_action(self, action: jax.Array) -> tuple[jax.Array, jax.Array]:
         return action[..., : self.human_action_size], action[..., self.human_action_size :]

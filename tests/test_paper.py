@@ -5,9 +5,9 @@ from pathlib import Path
 
 import pytest
 
-spec = importlib.util.spec_from_file_location("paper", Path(__file__).parents[1] / "experiments" / "paper.py")
-paper = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(paper)
+_loader = importlib.util.spec_from_file_location("paper", Path(__file__).parents[1] / "experiments" / "paper.py")
+paper = importlib.util.module_from_spec(_loader)
+_loader.loader.exec_module(paper)
 
 
 @pytest.fixture(autouse=True)

@@ -64,12 +64,12 @@ class SeedChunk:
                 return jax.device_put(np.zeros((x.shape[0] // n,) + x.shape[1:], x.dtype), devs[i])
             return shard(x, i)
 
-        def whole(parts, axis, spec):
+        def whole(parts, axis, pspec):
             shape = list(parts[0].shape)
             shape[axis] *= n
             if parts[0].size == 0:  # placed as trainer.place_on_devices places empty leaves: replicated
                 return jax.device_put(np.zeros(shape, parts[0].dtype), NamedSharding(mesh, P()))
-            return jax.make_array_from_single_device_arrays(tuple(shape), NamedSharding(mesh, spec), list(parts))
+            return jax.make_array_from_single_device_arrays(tuple(shape), NamedSharding(mesh, pspec), list(parts))
 
         args = [(jax.tree.map(lambda x: piece(x, i), state), jax.tree.map(lambda x: shard(x, i), expert))
                 for i in range(n)]

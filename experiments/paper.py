@@ -243,7 +243,8 @@ def stability_rows(results: dict) -> list[str]:
             continue
         interp = ("n/a", "n/a") if r.get("method") == "bc_single" else \
             (fmt(r["selected"]["interpolation"]), fmt(r["last"]["interpolation"]))
-        lines.append(f"| {k} | {fmt(r['selected']['replay'])} | {fmt(r['last']['replay'])} | {interp[0]} | {interp[1]} |")
+        replay = (fmt(r["selected"]["replay"]), fmt(r["last"]["replay"]))
+        lines.append(f"| {k} | {replay[0]} | {replay[1]} | {interp[0]} | {interp[1]} |")
     return lines if len(lines) > 2 else []
 
 

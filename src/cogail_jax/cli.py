@@ -102,9 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--reevaluate", action="store_true",
                    help="with extra sets: evaluate every checkpoint again even if RUN/results.json is up to date "
                         "(by default only the extra sets are replayed then)")
-    e.add_argument("--ckpt-batch", type=_positive, default=1, metavar="N",
+    e.add_argument("--ckpt-batch", type=_positive, default=None, metavar="N",
                    help="evaluate N checkpoints in one device program (vmapped; same results, more memory; "
-                        "default 1)")
+                        "default 8 on a GPU, 1 on the CPU)")
     e.add_argument("--no-progress", action="store_true")
 
     pl = sub.add_parser("play", help="drive the human agent yourself in a local web page; the robot acts live",

@@ -114,6 +114,9 @@ def test_stack_sets_and_extra_set_summary():
     assert part == {"test": slice(0, 2), "validation": slice(2, 5)} and "strategy" not in batch
     assert batch["ah"].shape == (5, 7, 2) and batch["ah"][:2, 5:].sum() == 0 and batch["obs"].shape == (5, 7, 6)
     np.testing.assert_array_equal(batch["length"], [5, 4, 7, 1, 2])
+    padded, _ = evaluate.stack_sets({"test": a, "validation": b}, steps=9)  # shapes fixed by the episode limit
+    assert padded["ah"].shape == (5, 9, 2) and padded["obs"].shape == (5, 9, 6)
+    np.testing.assert_array_equal(padded["ah"][:, :7], batch["ah"])
     succ = {"selected": np.array([[1, 0, 1, 1], [0, 0, 1, 1]]), "paper_protocol": np.ones((2, 4))}
     e = evaluate.summarize_extra_set(succ, np.array([1, 1, 2, 2]), (7, 8), ("x", "y"),
                                      {"selected": 40, "paper_protocol": 30}, file="f.hdf5")
@@ -195,3 +198,7 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     assert again["selected"] == sel and again["paper_protocol"] == pp
     np.testing.assert_allclose(again["latent_map"]["codes"], res["latent_map"]["codes"], rtol=1e-5, atol=1e-6)
     assert set(again["extra_sets"]) == {"again", "val-again"}  # earlier extra sets are evaluated again
+    # ... stacked into one replay batch (4 and 6 episodes, padded to the episode limit): each set's figures are
+    # still those of its own episodes
+    assert again["extra_sets"]["again"]["selected"]["per_seed"] == sel["replay"]["per_seed"]
+    assert again["extra_sets"]["val-again"]["selected"]["per_seed"] == sel["validation_replay"]["per_seed"]

@@ -182,12 +182,13 @@ def heldout_arrays(demos) -> dict[str, np.ndarray]:
             "strategy": demos.strategy}
 
 
-def stack_sets(sets: dict[str, dict]) -> tuple[dict[str, np.ndarray], dict[str, slice]]:
-    """Episode sets (``heldout_arrays``) as one batch: zero-padded to the longest episode and concatenated along
-    the episode axis, so that one compiled evaluation program serves them all (e.g. test and validation: they
-    differ in data only). Returns the batch (without ``strategy``) and each set's slice of the episode axis."""
+def stack_sets(sets: dict[str, dict], steps: int = 0) -> tuple[dict[str, np.ndarray], dict[str, slice]]:
+    """Episode sets (``heldout_arrays``) as one batch: zero-padded to the longest episode (at least ``steps``, e.g.
+    the env's ``max_episode_steps``, so that the shapes do not depend on the data) and concatenated along the
+    episode axis, so that one compiled evaluation program serves them all (e.g. test and validation: they differ
+    in data only). Returns the batch (without ``strategy``) and each set's slice of the episode axis."""
     keys = ("init", "ah", "length", "obs", "prev_ah")
-    T = max(int(v["ah"].shape[1]) for v in sets.values())
+    T = max([int(steps)] + [int(v["ah"].shape[1]) for v in sets.values()])
     out, slices, i = {k: [] for k in keys}, {}, 0
     for name, v in sets.items():
         n = int(v["length"].shape[0])

@@ -297,20 +297,23 @@ def _extra_set_checkpoints(res: dict) -> dict[str, int]:
 
 
 def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict) -> dict:
-    """Replay each extra set at the selected and the paper-protocol replay checkpoints (one compiled replay
-    program per set shape); returns {name: evaluate.summarize_extra_set(...)}."""
+    """Replay each extra set at the selected and the paper-protocol replay checkpoints: all sets stacked into one
+    batch (one compiled replay program, one call per checkpoint); returns {name: evaluate.summarize_extra_set(...)}."""
     replay = evaluate.make_replay_fn(s.cfg, s.env, s.nets)
     cks = _extra_set_checkpoints(res)
     states = {st: ckpt.restore(mgr, st, abstract) for st in sorted(set(cks.values()))}
-    out = {}
-    for name, path in extra_sets.items():
-        ep = evaluate.heldout_arrays(data.load_demos(path, s.env, require_init=True))
-        arrays = {k: v for k, v in ep.items() if k != "strategy"}
-        succ = {key: np.asarray(jax.device_get(replay(states[st].params, states[st].norm, arrays))["success"])
-                for key, st in cks.items()}
-        out[name] = evaluate.summarize_extra_set(succ, ep["strategy"], s.cfg.seeds, s.env.strategy_names, cks,
-                                                 file=path)
-    return out
+    eps = {name: evaluate.heldout_arrays(data.load_demos(path, s.env, require_init=True))
+           for name, path in extra_sets.items()}
+    if not eps:
+        return {}
+    batch, part = evaluate.stack_sets(eps, steps=s.env.max_episode_steps)
+    arrays = {k: batch[k] for k in ("init", "ah", "length")}
+    succ = {key: np.asarray(jax.device_get(replay(states[st].params, states[st].norm, arrays))["success"])
+            for key, st in cks.items()}
+    return {name: evaluate.summarize_extra_set({key: x[:, part[name]] for key, x in succ.items()},
+                                               eps[name]["strategy"], s.cfg.seeds, s.env.strategy_names, cks,
+                                               file=path)
+            for name, path in extra_sets.items()}
 
 
 def _save_extra_sets(run_dir: Path, res: dict, names) -> None:
@@ -403,7 +406,8 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
         if not steps:
             raise RunError(f"{run_dir} has no checkpoints yet: train it first")
         abstract = jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert))
-        held, part = evaluate.stack_sets({"test": s.heldout, "validation": s.validation})
+        held, part = evaluate.stack_sets({"test": s.heldout, "validation": s.validation},
+                                         steps=s.env.max_episode_steps)
         per_ckpt, codes = _evaluate_checkpoints(s, mgr, abstract, steps, held, part, ckpt_batch, progress)
         if not per_ckpt:
             raise ckpt.nothing_restored(mgr, run_dir)

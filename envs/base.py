@@ -92,7 +92,8 @@ class CollabEnv(Env):
     @property
     def version(self) -> str:
         """A fingerprint of the task's dynamics and observation layout (MJCF, substeps, ``spec_tag``), stored in
-        generated demonstration files: cached default demonstrations made under other physics are regenerated."""
+        generated demonstration files: cached default demonstrations made under other physics (or, through
+        ``spec_tag``, another observation layout or scripted team) are regenerated."""
         import hashlib
 
         parts = (self.name, getattr(self, "xml", ""), getattr(self, "n_substeps", ""), self.max_episode_steps)

@@ -96,7 +96,9 @@ class FetchQuest(CollabEnv):
     init_size = 4
     strategy_names = ("human-helps-first/left", "human-first/left", "human-helps-first/right", "human-first/right")
     discriminator_loss = "bce"
-    spec_tag = "obs12"  # the observation layout (part of the version fingerprint of generated demonstrations)
+    # the observation layout and the scripted team's behaviour (part of the version fingerprint of generated
+    # demonstrations: cached ones made under another layout or by another team are regenerated)
+    spec_tag = "obs12-watching-team"
 
     def __init__(self, max_episode_steps: int = 300):
         self.max_episode_steps = int(max_episode_steps)

@@ -59,6 +59,32 @@ def test_robot_ignoring_human_fails(fetchq, episodes):
     assert np.all(ignore.strategy[ignore.success > 0] == 1)
 
 
+def test_robot_watches_the_human(fetchq):
+    """The robot does not know the strategy at step 0: it stands still (exactly) until the human's heading
+    has shown it, and then follows the human's strategy."""
+    n, steps = 16, 40
+
+    def roll(key):
+        k_init, k_team, k_run = jax.random.split(key, 3)
+        state = fetchq.reset_from(fetchq.sample_init(k_init))
+        ts, strategy = fetchq.team_init(k_team, fetchq.uniform_mix())
+
+        def body(carry, k):
+            state, ts = carry
+            ts, a = fetchq.team_act(ts, state, k)
+            return (fetchq.step(state, a), ts), (a[2:], ts.strategy[1])
+
+        _, (a_robot, known) = jax.lax.scan(body, (state, ts), jax.random.split(k_run, steps))
+        return ts.strategy[1], strategy, a_robot, known
+
+    keys = jax.random.split(jax.random.PRNGKey(0), n)
+    at_reset, strategy, a_robot, known = map(np.asarray, jax.jit(jax.vmap(roll))(keys))
+    assert np.all(at_reset == 0) and np.all(known[:, 0] == 0)  # the human has not moved yet at step 0
+    assert np.all(a_robot[known == 0] == 0) and np.all(np.abs(a_robot[known != 0]).sum(-1) > 0)
+    assert np.median(np.argmax(known > 0, axis=1)) >= 3  # it takes the human a few steps to show its heading
+    assert np.mean(known[:, -1] == strategy) >= 15 / 16
+
+
 @pytest.mark.parametrize("name", ["D1", "D2"])
 def test_mixture_proportions(fetchq, name):
     w = demos.resolve_mix(fetchq, name)

@@ -5,10 +5,16 @@ DOOR, TREASURE, EXIT, HOLD(other button), DEST; helper-first HOLD(other button),
 DEST. Within a strategy it varies speeds, curved legs, reaction delays after each phase, short pauses and
 action noise; motion is low-pass filtered with a slow-down on arrival (minimum-jerk-like).
 
-How the robot decides: it reads the strategy from the team's shared plan (``strategy``, as a human
-partner who agreed on the plan would), so its route is fixed from step 0; its TIMING reacts to the state:
-it waits at a door until the human opens it (``doors``) and holds a button until the human is inside the
-room with the treasure. A robot that replays the demonstrators' timing fails when the human is late.
+How the robot decides: it watches the human (:func:`read_strategy`). It compares the human's heading (its
+last action) with the directions to the four strategies' first targets (a button or a door) and commits to a
+strategy once the heading clearly points at its target (or the human stands at it); it may re-decide while
+both agents are still in their first phase (a human who first heads elsewhere is followed), and until it
+knows it waits still. A human partner in a human-human demonstration does not know the other's plan in
+advance, and a robot learned from such demonstrations follows the person rather than a plan fixed at step 0
+(the strategy drawn from ``mix`` is the human's; ``strategy[1]`` is what the robot has read so far). Its
+TIMING reacts to the state: it waits at a door until the human opens it (``doors``) and holds a button until
+the human is inside the room with the treasure. A robot that replays the demonstrators' timing fails when
+the human is late.
 
 Variations of the human (:mod:`cogail_envs.teams`; the robot is unchanged):
 
@@ -38,10 +44,16 @@ NUM_PAUSES, PAUSE_START, PAUSE_LEN = 2, (5, 130), (20, 41)
 NOISE_STD, NOISY_STD = 0.05, 0.25
 DECOY_STEPS = (15, 36)
 WAYPOINT_BOXES = ((1.2, 2.2, 6.8, 5.0), (2.0, 2.0, 6.0, 4.5))  # x0, y0, x1, y1: first leg, destination leg
+UNKNOWN = 0  # the robot's strategy before it has read the human's
+# the robot commits when the human's heading points at one strategy's first target: cosine above WATCH_COS,
+# WATCH_MARGIN above the runner-up, and the human moving (|last action| above WATCH_SPEED); or when the human
+# stands within WATCH_AT of one (there its heading is jitter, which would otherwise flip the robot's choice
+# after the human arrived, and leave a robot that chose wrong waiting for a human who waits for it)
+WATCH_COS, WATCH_MARGIN, WATCH_SPEED, WATCH_AT = 0.93, 0.15, 0.2, 0.5
 
 
 class TeamState(NamedTuple):
-    strategy: jax.Array  # (2,) strategy each agent follows (equal for a real team)
+    strategy: jax.Array  # (2,) strategy each agent follows (the robot's: UNKNOWN until it has read the human's)
     phase: jax.Array  # (2,) int32
     delay: jax.Array  # (2,) int32 reaction-delay / pause countdown
     prev: jax.Array  # (2, 2) previous action (smoothing)
@@ -57,6 +69,7 @@ class TeamState(NamedTuple):
     wp_on: jax.Array  # (2,) bool: waypoint still to visit
     decoy: jax.Array  # () int32 strategy whose first target the human heads for first
     decoy_n: jax.Array  # () int32 steps left of heading for it (0: none)
+    watching: jax.Array  # () bool: the robot reads its strategy off the human (False: it keeps strategy[1])
 
 
 def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamState, jax.Array]:
@@ -70,7 +83,7 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
     decoy = (strategy - 1 + jax.random.randint(kv[2], (), 1, 4)) % 4 + 1
     decoy_n = jnp.where(v == CHANGE_OF_MIND, jax.random.randint(kv[3], (), *DECOY_STEPS), 0)
     ts = TeamState(
-        strategy=jnp.stack([strategy, strategy]).astype(jnp.int32),
+        strategy=jnp.stack([strategy, jnp.full_like(strategy, UNKNOWN)]).astype(jnp.int32),
         phase=jnp.zeros((2,), jnp.int32),
         delay=jax.random.randint(ks[1], (2,), 0, 6),
         prev=jnp.zeros((2, 2)),
@@ -85,6 +98,7 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
         wp_on=jnp.full((2,), v == DETOUR),
         decoy=decoy.astype(jnp.int32),
         decoy_n=decoy_n.astype(jnp.int32),
+        watching=jnp.array(True),
     )
     ts = ts._replace(curve=ts.curve.at[0].multiply(ts.curve_scale))
     return ts, strategy.astype(jnp.int32)
@@ -104,6 +118,23 @@ def first_target(strategy: jax.Array, agent: int) -> jax.Array:
     """Where an agent following ``strategy`` goes first: its room's door (fetcher) or the other button."""
     own, other, fetch_first = plan(strategy, agent)
     return jnp.where(fetch_first, jnp.asarray(DOOR_SPOTS)[own], jnp.asarray(BUTTONS)[other])
+
+
+def read_strategy(ts: TeamState, ps: dict) -> jax.Array:
+    """The robot's strategy after watching the human this step: the strategy whose first target the human
+    stands at or its heading (its last action) clearly points at; it may (re)decide only while both agents are
+    in their first phase, and otherwise keeps what it had (UNKNOWN until then)."""
+    targets = jnp.stack([first_target(jnp.int32(s), 0) for s in range(1, 5)])  # (4, 2)
+    v = ts.prev[0]
+    d = targets - ps["pos"][0]
+    dist, speed = jnp.linalg.norm(d, axis=-1), jnp.linalg.norm(v)
+    cos = (d @ v) / (dist * speed + 1e-6)
+    runner_up, top = jnp.sort(cos)[-2:]
+    heading = (top > WATCH_COS) & (top - runner_up > WATCH_MARGIN) & (speed > WATCH_SPEED)
+    at = jnp.min(dist) < WATCH_AT
+    best = jnp.where(at, jnp.argmin(dist), jnp.argmax(cos)) + 1
+    may = ts.watching & (ts.phase[0] == 0) & (ts.phase[1] == 0)
+    return jnp.where(may & (at | heading), best, ts.strategy[1]).astype(jnp.int32)
 
 
 def agent_target(ts: TeamState, ps: dict, i: int) -> tuple[jax.Array, jax.Array]:
@@ -162,6 +193,10 @@ def team_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.
     ps = state.pipeline_state
     k_noise, k_delay, k_pause, k_curve = jax.random.split(rng, 4)
     stopped = paused(ts.pause_t, ts.pause_n, state.info["t"])  # the human's variation: a dead stop
+    robot_strategy = read_strategy(ts, ps)
+    unknown = robot_strategy == UNKNOWN
+    # while unknown the robot's program runs on a placeholder strategy (1) and its outputs are discarded
+    ts = ts._replace(strategy=ts.strategy.at[1].set(jnp.where(unknown, 1, robot_strategy)))
     actions, phases, delays, curves = [], [], [], []
     decoy_n, wp_on = ts.decoy_n, ts.wp_on
     for i in range(2):
@@ -203,11 +238,17 @@ def team_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.
             curve = jnp.where(stopped, ts.curve[0], curve)
             decoy_n = jnp.where(stopped, ts.decoy_n, decoy_n)
             wp_on = jnp.where(stopped, ts.wp_on, wp_on)
+        else:  # a robot that does not know the strategy yet stands still in its first phase
+            a = jnp.where(unknown, 0.0, a)
+            new_phase = jnp.where(unknown, 0, new_phase)
+            delay = jnp.where(unknown, 0, delay)
+            curve = jnp.where(unknown, ts.curve[1], curve)
         actions.append(a)
         phases.append(new_phase)
         delays.append(delay)
         curves.append(curve)
     prev = jnp.stack(actions)
-    new_ts = ts._replace(phase=jnp.stack(phases), delay=jnp.stack(delays).astype(jnp.int32), prev=prev,
-                         curve=jnp.stack(curves), decoy_n=decoy_n.astype(jnp.int32), wp_on=wp_on)
+    new_ts = ts._replace(strategy=ts.strategy.at[1].set(robot_strategy), phase=jnp.stack(phases),
+                         delay=jnp.stack(delays).astype(jnp.int32), prev=prev, curve=jnp.stack(curves),
+                         decoy_n=decoy_n.astype(jnp.int32), wp_on=wp_on)
     return new_ts, prev.reshape(-1)

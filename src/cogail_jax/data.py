@@ -291,7 +291,8 @@ def ensure_default_demos(env, split: str = "train", mix: str = "uniform", verbos
         if _stored_version(path) == env.version:
             return path
         if verbose:
-            print(f"{path} was made under other physics: regenerating it", flush=True)
+            print(f"{path} was made by another version of the task (physics, observation or team): regenerating it",
+                  flush=True)
     split = split_name(split)
     num = num or default_count(env.name, split)
     seed = SPLIT_SEEDS[split]  # one generator seed per split: the splits are disjoint

@@ -59,6 +59,8 @@ def team_rollout_fn(env, num: int, robot_strategy: int | None = None):
         ts, strategy = env.team_init(k_team, mix)
         if robot_strategy is not None:
             ts = ts._replace(strategy=ts.strategy.at[1].set(robot_strategy))
+            if "watching" in ts._fields:  # a robot that reads the strategy off the human stops doing so
+                ts = ts._replace(watching=jnp.array(False))
 
         def body(carry, key):
             state, ts, finished, last_metrics = carry

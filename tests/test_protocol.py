@@ -202,3 +202,13 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     # still those of its own episodes
     assert again["extra_sets"]["again"]["selected"]["per_seed"] == sel["replay"]["per_seed"]
     assert again["extra_sets"]["val-again"]["selected"]["per_seed"] == sel["validation_replay"]["per_seed"]
+
+
+def test_checkpoints_per_evaluation_program_default_by_backend(monkeypatch):
+    """None (the CLI's default): 1 checkpoint per program on the CPU, 8 on an accelerator."""
+    from cogail_jax import trainer
+
+    monkeypatch.setattr(trainer.jax, "default_backend", lambda: "cpu")
+    assert trainer.default_ckpt_batch() == 1
+    monkeypatch.setattr(trainer.jax, "default_backend", lambda: "gpu")
+    assert trainer.default_ckpt_batch() == 8

@@ -426,6 +426,7 @@ def robustness_figure(results: dict, out_png, blind: dict | None = None, title: 
             if v in names:
                 bx.append(names.index(v))
                 by_.append(100 * b["varied"])
+        bx = np.asarray(bx, float) - 0.4 + width * 0.5  # over the "all" bars: overall against overall
         ax.plot(bx, by_, "rv", markersize=9, label="blind robot (ignores the human)")
     ax.set_xticks(x, names, rotation=20)
     ax.set_ylabel("replay success (%)")

@@ -107,6 +107,14 @@ def _context(method, tiny_cfg, fetchq, expert, **kw):
     return ctx, state, exp_b, gen_b, expert
 
 
+def _ppo_batch(gen_b, env):
+    """A PPO minibatch (with the generated steps' histories, for L_z's co-policy part) standing in for a rollout's."""
+    n = gen_b["obs"].shape[0]
+    return {"obs": gen_b["obs"], "z": gen_b["z"], "action": np.zeros((n, env.action_size), np.float32),
+            "logp": np.zeros(n, np.float32), "adv": np.linspace(-1, 1, n), "ret": np.zeros(n, np.float32),
+            "hist": gen_b["hist"], "prev_obs": gen_b["prev_obs"], "first": gen_b["first"]}
+
+
 def _norm(tree):
     return max(float(np.abs(x).max()) for x in jax.tree.leaves(tree))
 
@@ -124,8 +132,7 @@ def test_only_la_lets_expert_actions_reach_psi(method, tiny_cfg, fetchq, expert)
     psi_grad = lambda f: _norm(jax.grad(lambda p: f({**params, "psi": p}))(params["psi"]))  # noqa: E731
     aux_exp = psi_grad(lambda p: losses.aux_objective(cfg, nets, p, None, exp_b)[0])
     bc = psi_grad(lambda p: losses.bc_objective(cfg, nets, p, exp_b))
-    ppo_batch = {"obs": exp_b["obs"], "z": gen_b["z"], "action": np.zeros((64, fetchq.action_size), np.float32),
-                 "logp": np.zeros(64, np.float32), "adv": np.linspace(-1, 1, 64), "ret": np.zeros(64, np.float32)}
+    ppo_batch = _ppo_batch(gen_b, fetchq)
     ppo = psi_grad(lambda p: losses.ppo_objective(cfg, nets, p, ppo_batch, exp_b)[0])
     assert ppo == 0.0
     if method == "cogail":
@@ -180,3 +187,51 @@ def test_aux_and_disc_learning_rates_follow_the_switch(decay, tiny_cfg):
         after, _ = tx.update(g, s, p)  # the step after the run's last one
         ratio = float(np.abs(after["w"]).max() / np.abs(first["w"]).max())
         assert (ratio < 1e-6) if decay else (ratio > 0.9), ratio
+
+
+@pytest.mark.parametrize("method", ["ma_infogail", "cogail"])
+def test_lz_moves_the_co_policy_in_the_ppo_step(method, tiny_cfg, fetchq, expert):
+    """lz_step="ppo" (InfoGAIL's joint policy objective): the aux step's L_z trains psi only, and the co-policy
+    minimises lambda_z x L_z inside the PPO step, psi held fixed. Regression: with L_z's co-policy part in the
+    aux step (lz_step="aux"), MA-InfoGAIL's human output weights got gradient from L_z alone there, so Adam
+    moved them at the full aux learning rate whatever lambda_z was, and the human left its demonstrated
+    behaviour: interpolation 0 % at every checkpoint on GPU at paper budgets."""
+    from cogail_jax import losses
+
+    ctx, state, exp_b, gen_b, _ = _context(method, tiny_cfg, fetchq, expert)
+    cfg, nets, params = ctx.cfg, ctx.nets, state.params
+    assert cfg.lz_step == "ppo"
+    grad = lambda c, f, k: jax.grad(lambda x: f(c, {**params, k: x}))(params[k])  # noqa: E731
+    aux_gen = lambda c, p: losses.aux_objective(c, nets, p, gen_b, None)[0]  # noqa: E731
+    assert _norm(grad(cfg, aux_gen, "actor")) == 0.0 and _norm(grad(cfg, aux_gen, "psi")) > 0
+    old = cfg.replace(lz_step="aux")
+    assert _norm(grad(old, aux_gen, "actor")) > 0  # the previous behaviour, kept as an option
+    batch = _ppo_batch(gen_b, fetchq)
+    _, m = losses.ppo_objective(cfg, nets, params, batch, exp_b)
+    assert "ppo_lz" in m and float(m["ppo_lz"]) > 0
+    lz_only = lambda c, p: (losses.ppo_objective(c, nets, p, batch, exp_b)[0]  # noqa: E731
+                            - losses.ppo_objective(c.replace(lambda_z=0.0), nets, p, batch, exp_b)[0])
+    assert _norm(grad(cfg, lz_only, "actor")) > 0 and _norm(grad(cfg, lz_only, "psi")) == 0.0
+    assert "ppo_lz" not in losses.ppo_objective(old, nets, params, batch, exp_b)[1]
+
+
+@pytest.mark.parametrize("method", ["ma_infogail", "diayn", "cogail"])
+def test_expert_terms_act_on_codes_the_co_policy_knows(method, tiny_cfg, fetchq, expert):
+    """Without L_a psi never learns the demonstrations' codes, so L_r and PPO+BC act on each demonstration's
+    own code from BC pre-training (in the prior's square, the codes the co-policy was cloned on), not on psi's
+    code of the expert history; Co-GAIL keeps psi's code (its L_a teaches psi the demonstrations' codes).
+    Regression: MA-InfoGAIL's robot was fitted to expert actions on psi codes it never sees at interpolation."""
+    from cogail_jax import losses
+
+    ctx, state, exp_b, gen_b, expert = _context(method, tiny_cfg, fetchq, expert)
+    cfg, nets, params = ctx.cfg, ctx.nets, state.params
+    params = train.bc_pretrain(ctx, state, expert)[0].params
+    z_demo = np.tanh(np.asarray(params["codes"]))[np.asarray(exp_b["demo"])]
+    assert np.all(np.abs(z_demo) < 1)
+    z_psi = nets.psi(params["psi"], np.concatenate([exp_b["hist"], exp_b["prev_ah"]], -1))
+    _, lr_demo = losses.behaviour_loss(nets.psi, nets.actor, params, exp_b, nets.human_size, z=z_demo)
+    _, lr_psi = losses.behaviour_loss(nets.psi, nets.actor, params, exp_b, nets.human_size, z=z_psi)
+    _, m = losses.aux_objective(cfg, nets, params, None, exp_b)
+    want = lr_psi if method == "cogail" else lr_demo
+    assert np.isclose(float(m["loss_r"]), float(want), rtol=1e-5), (float(m["loss_r"]), float(lr_demo), float(lr_psi))
+    assert not np.isclose(float(lr_demo), float(lr_psi), rtol=1e-3)

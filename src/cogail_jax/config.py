@@ -53,7 +53,8 @@ class TrainConfig:
     policy_cooldown: int = 0  # the run's last N updates: PPO trains the critic only, the co-policy moves by the
     #   L_a / L_r steps alone (our addition, 0 = off; README, "HR-SeqManip")
     # PPO+BC (our addition, 0 = off): every PPO minibatch adds bc_coef x the squared error of the co-policy's
-    # mean on an expert minibatch, both agents acting on psi's code of the expert history. Unlike lambda_a /
+    # mean on an expert minibatch, both agents acting on psi's code of the expert history (without L_a: on the
+    # demonstration's code, losses.expert_code). Unlike lambda_a /
     # lambda_r, whose separate Adam step is scale-free per tower, this weight sets the balance against the
     # discriminator's policy gradient inside one optimizer step (README, "HR-SeqManip")
     bc_coef: float = 0.0
@@ -73,12 +74,20 @@ class TrainConfig:
     code_noise: float = 0.2
     history: int = 4  # K: psi reads s_{t-K..t} and a^H_{t-1}
     lambda_z: float = 0.05  # the paper gives no value; 1.0 erodes interpolation (README)
+    # where L_z's co-policy part is optimised. "ppo" (InfoGAIL's joint policy objective): psi minimises L_z in
+    # the aux step with the co-policy held fixed, and the co-policy minimises lambda_z x L_z (psi held fixed) on
+    # the rollout's own steps inside the PPO step, so that lambda_z weighs L_z against the GAIL surrogate.
+    # "aux" (before 2026-11-23): both in the aux step, where Adam rescales each parameter's gradient: without
+    # L_a (ma_infogail) the human's output weights see L_z alone there, lambda_z no longer scales anything, and
+    # L_z drove the human away from the demonstrations (interpolation 0 %; docs/notes.md)
+    lz_step: str = "ppo"
     lambda_a: float = 1.0
     diversity_coef: float = 0.1  # DIAYN: weight of the diversity reward
     la_codes: str = "demo"  # L_a's code: "psi" (the paper: psi of each step's history) or "demo" (one learned
     # code per demonstration, psi regressing it; keeps the code constant along an episode as in the rollouts)
     lambda_r: float = 1.0  # our addition: robot-action reconstruction on expert data with psi's code (0 = paper;
-    #   without L_a psi's code enters through stop_gradient)
+    #   without L_a, where psi never learns the demonstrations' codes, with each demonstration's code from BC
+    #   pre-training, held fixed: losses.expert_code)
     aux_lr: float = 3e-4
     # the aux (psi, L_z / L_a / L_r) and discriminator learning rates decay linearly to 0 over the run, as PPO's
     # does (off = constant, the paper's code)
@@ -164,6 +173,8 @@ class TrainConfig:
             raise ConfigError(
                 f"num-envs x unroll-length ({self.steps_per_update}) must be divisible by num-minibatches "
                 f"({self.num_minibatches})")
+        if self.lz_step not in ("ppo", "aux"):
+            raise ConfigError(f"lz-step must be ppo or aux, got {self.lz_step!r}")
         if self.disc_loss not in ("auto", "bce", "lsgan"):
             raise ConfigError(f"disc-loss must be auto, bce or lsgan, got {self.disc_loss!r}")
         return self

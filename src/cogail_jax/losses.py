@@ -83,9 +83,14 @@ def discriminator_reward(d, kind):
     return d
 
 
-def code_loss(psi_apply, actor_apply, params, batch, human_size):
+def code_loss(psi_apply, actor_apply, params, batch, human_size, train="both"):
     """L_z on generated data: psi(s_{t-K..t}, mu_H(s_{t-1}, z)) should recover z; the human action in the
-    history is the policy mean, so the gradient reaches the co-policy."""
+    history is the policy mean, so the gradient reaches the co-policy. ``train``: "both", "psi" (the
+    co-policy held fixed: psi's part, in the aux step) or "policy" (psi held fixed: the co-policy's part, in
+    the PPO step; ``lz_step``)."""
+    sg = jax.lax.stop_gradient
+    params = {**params, "actor": sg(params["actor"]) if train == "psi" else params["actor"],
+              "psi": sg(params["psi"]) if train == "policy" else params["psi"]}
     mean_prev, _ = actor_apply(params["actor"], batch["prev_obs"], batch["z"])
     a_prev = jnp.where(batch["first"][:, None], 0.0, mean_prev[:, :human_size])
     h = jnp.concatenate([batch["hist"], a_prev], -1)
@@ -93,12 +98,13 @@ def code_loss(psi_apply, actor_apply, params, batch, human_size):
     return jnp.mean(jnp.sum((z_hat - batch["z"]) ** 2, -1))
 
 
-def behaviour_loss(psi_apply, actor_apply, params, batch, human_size, psi_grad=True):
+def behaviour_loss(psi_apply, actor_apply, params, batch, human_size, psi_grad=True, z=None):
     """L_a on expert data: the human part of the co-policy, fed psi's code of the expert history, should
     reproduce the expert human action. Also returns the same error for the robot part (L_r, our addition:
     the robot acting with psi's code on expert histories, weighted by ``lambda_r``). ``psi_grad=False``: psi's
-    code enters through stop_gradient (presets without L_a: psi learns nothing from expert actions)."""
-    z_hat = psi_apply(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1))
+    code enters through stop_gradient (presets without L_a: psi learns nothing from expert actions). ``z``:
+    the code to act on instead of psi's (``expert_code``)."""
+    z_hat = psi_apply(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1)) if z is None else z
     if not psi_grad:
         z_hat = jax.lax.stop_gradient(z_hat)
     mean, _ = actor_apply(params["actor"], batch["obs"], z_hat)
@@ -180,11 +186,12 @@ def objective_terms(cfg: TrainConfig) -> frozenset[str]:
     """Exactly which terms a preset optimises:
 
     * ``gail_human`` / ``gail_robot``: PPO on the discriminator's reward moves the human / robot actions
-    * ``L_z``: psi and the co-policy on code reconstruction from generated data (InfoGAIL)
+    * ``L_z``: psi and the co-policy on code reconstruction from generated data (InfoGAIL); with
+      ``lz_step="ppo"`` psi's part in the aux step, the co-policy's in the PPO step
     * ``L_a``: behaviour reconstruction of the expert human actions through psi's code (Co-GAIL); the only
       term through which expert actions reach psi
-    * ``L_r``: robot-action reconstruction on expert data (our addition, ``lambda_r`` > 0); psi's code
-      enters it through stop_gradient unless ``L_a`` is on
+    * ``L_r``: robot-action reconstruction on expert data (our addition, ``lambda_r`` > 0) on psi's code
+      where ``L_a`` is on, else on each demonstration's code from BC pre-training (``expert_code``)
     * ``diversity``: DIAYN's reward for the co-policy and psi's fit as q(z | h) on generated data
     * ``ppo_bc``: PPO+BC, both agents' squared error on expert data inside the PPO step (``bc_coef`` > 0)
     * ``bc_human`` / ``bc_robot`` / ``bc_psi``: behaviour cloning of the human / the robot / psi regressing
@@ -217,6 +224,25 @@ def _code_net(cfg: TrainConfig, nets: Nets):
     return lambda _, h: jnp.zeros(h.shape[:-1] + (cfg.code_dim,))
 
 
+def expert_code(cfg: TrainConfig, params, batch):
+    """The code the co-policy acts on in the expert-data terms of a preset without L_a (L_r, PPO+BC): each
+    demonstration's own code from BC pre-training (``params["codes"]``, tanh-squashed, held fixed), or
+    z = 0 without a strategy code; None where psi's code is meant (Co-GAIL, whose L_a teaches psi the
+    demonstrations' codes).
+
+    Without L_a psi learns only from generated data (L_z, DIAYN's q fit): on expert histories its code is not
+    one the co-policy was cloned on (BC pre-training uses the demonstrations' codes, spread over the prior's
+    square), nor one it is given at interpolation (codes from the prior), so fitting the robot to expert
+    actions on it taught the robot a second, unrelated use of z. The demonstrations' codes are the ones the
+    co-policy already acts on for those demonstrations and lie in the prior's support; no expert action
+    reaches psi either way."""
+    if "L_a" in objective_terms(cfg):
+        return None
+    if not cfg.use_code:
+        return jnp.zeros(batch["obs"].shape[:-1] + (cfg.code_dim,))
+    return jax.lax.stop_gradient(jnp.tanh(params["codes"])[batch["demo"]])
+
+
 def aux_objective(cfg: TrainConfig, nets: Nets, params, gen_batch, exp_batch):
     """The psi / co-policy step: lambda_1 L_z (and DIAYN's q fit) on generated data, lambda_2 L_a and
     lambda_r L_r on expert data, for the terms the preset has. ``gen_batch`` or ``exp_batch`` None leaves
@@ -225,13 +251,14 @@ def aux_objective(cfg: TrainConfig, nets: Nets, params, gen_batch, exp_batch):
     terms = {}
     if gen_batch is not None:
         if "L_z" in on:
-            terms["loss_z"] = (cfg.lambda_z, code_loss(nets.psi, nets.actor, params, gen_batch, nets.human_size))
+            terms["loss_z"] = (cfg.lambda_z, code_loss(nets.psi, nets.actor, params, gen_batch, nets.human_size,
+                                                       train="psi" if cfg.lz_step == "ppo" else "both"))
         if "diversity" in on:
             h = jnp.concatenate([gen_batch["hist"], gen_batch["prev_ah"]], -1)
             terms["loss_q"] = (1.0, diversity_q_loss(nets.psi, params, h, gen_batch["z"]))
     if exp_batch is not None and on & {"L_a", "L_r"}:
         la, lr = behaviour_loss(_code_net(cfg, nets), nets.actor, params, exp_batch, nets.human_size,
-                                psi_grad="L_a" in on)
+                                psi_grad="L_a" in on, z=expert_code(cfg, params, exp_batch))
         if "L_a" in on:
             if cfg.la_codes == "demo":  # one learned code per demonstration, psi regressing it
                 la = bc_loss(nets.psi, nets.actor, params, exp_batch, True, codes="demo", target="human")
@@ -244,12 +271,18 @@ def aux_objective(cfg: TrainConfig, nets: Nets, params, gen_batch, exp_batch):
 
 def ppo_objective(cfg: TrainConfig, nets: Nets, params, batch, exp_batch):
     """Clipped PPO on a minibatch; with ``ppo_bc``, + bc_coef x both agents' squared error on an expert
-    minibatch, acting on psi's code of the expert history (held fixed: no gradient reaches psi)."""
+    minibatch, acting on psi's code of the expert history (held fixed: no gradient reaches psi; without L_a
+    the demonstration's code, ``expert_code``); with ``L_z`` and ``lz_step="ppo"``, + lambda_z x L_z on the
+    minibatch's own generated steps, psi held fixed (InfoGAIL: the policy minimises the GAIL objective and
+    lambda_z L_z together)."""
     total, m = ppo_loss(nets.actor, nets.critic, params, batch, cfg.clip_eps, cfg.value_coef, cfg.entropy_coef)
     if "ppo_bc" in objective_terms(cfg):
         la, lr = behaviour_loss(_code_net(cfg, nets), nets.actor, params, exp_batch, nets.human_size,
-                                psi_grad=False)
+                                psi_grad=False, z=expert_code(cfg, params, exp_batch))
         total, m = total + cfg.bc_coef * (la + lr), {**m, "ppo_bc": la + lr}
+    if "L_z" in objective_terms(cfg) and cfg.lz_step == "ppo":
+        lz = code_loss(nets.psi, nets.actor, params, batch, nets.human_size, train="policy")
+        total, m = total + cfg.lambda_z * lz, {**m, "ppo_lz": lz}
     return total, m
 
 
@@ -292,6 +325,7 @@ def preset_table_markdown() -> str:
                     f"{yes('ppo_bc' in t)} | {psi} |")
     return "\n".join(rows) + (
         "\n\nL_r (`lambda_r`, default 1), BC pre-training (`bc_steps`) and PPO+BC (`bc_coef`, default 0) are our "
-        "additions, shared by every preset that has the agent they train (shown switched on). Without L_a, psi's "
-        "code enters L_r, PPO+BC and BC pre-training only through stop_gradient; without a strategy code "
+        "additions, shared by every preset that has the agent they train (shown switched on). Without L_a, psi "
+        "learns nothing from expert actions: L_r and PPO+BC act on each demonstration's code from BC pre-training "
+        "(`losses.expert_code`), and L_z's co-policy part is in the PPO step (`lz_step`); without a strategy code "
         "(`ma_gail`, `bc_gail`, `bc_single`) the co-policy sees z = 0. `bc_gail`'s human is frozen after BC.")

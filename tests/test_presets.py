@@ -190,29 +190,29 @@ def test_aux_and_disc_learning_rates_follow_the_switch(decay, tiny_cfg):
 
 
 @pytest.mark.parametrize("method", ["ma_infogail", "cogail"])
-def test_lz_moves_the_co_policy_in_the_ppo_step(method, tiny_cfg, fetchq, expert):
-    """lz_step="ppo" (InfoGAIL's joint policy objective): the aux step's L_z trains psi only, and the co-policy
-    minimises lambda_z x L_z inside the PPO step, psi held fixed. Regression: with L_z's co-policy part in the
-    aux step (lz_step="aux"), MA-InfoGAIL's human output weights got gradient from L_z alone there, so Adam
-    moved them at the full aux learning rate whatever lambda_z was, and the human left its demonstrated
-    behaviour: interpolation 0 % at every checkpoint on GPU at paper budgets."""
+def test_lz_moves_the_co_policy_in_the_ppo_step_without_la(method, tiny_cfg, fetchq, expert):
+    """Without L_a (MA-InfoGAIL) the aux step's L_z trains psi only, and the co-policy minimises lambda_z x L_z
+    inside the PPO step, psi held fixed (InfoGAIL's joint policy objective); Co-GAIL keeps both parts in the aux
+    step beside L_a. Regression: with L_z's co-policy part in the aux step, MA-InfoGAIL's human output weights
+    got gradient from L_z alone there, so Adam moved them at the full aux learning rate whatever lambda_z was,
+    and the human left its demonstrated behaviour: interpolation 0 % at every checkpoint on GPU."""
     from cogail_jax import losses
 
     ctx, state, exp_b, gen_b, _ = _context(method, tiny_cfg, fetchq, expert)
     cfg, nets, params = ctx.cfg, ctx.nets, state.params
-    assert cfg.lz_step == "ppo"
+    in_ppo = method == "ma_infogail"
+    assert losses.lz_in_ppo(cfg) == in_ppo
     grad = lambda c, f, k: jax.grad(lambda x: f(c, {**params, k: x}))(params[k])  # noqa: E731
     aux_gen = lambda c, p: losses.aux_objective(c, nets, p, gen_b, None)[0]  # noqa: E731
-    assert _norm(grad(cfg, aux_gen, "actor")) == 0.0 and _norm(grad(cfg, aux_gen, "psi")) > 0
-    old = cfg.replace(lz_step="aux")
-    assert _norm(grad(old, aux_gen, "actor")) > 0  # the previous behaviour, kept as an option
+    assert (_norm(grad(cfg, aux_gen, "actor")) == 0.0) == in_ppo and _norm(grad(cfg, aux_gen, "psi")) > 0
     batch = _ppo_batch(gen_b, fetchq)
     _, m = losses.ppo_objective(cfg, nets, params, batch, exp_b)
-    assert "ppo_lz" in m and float(m["ppo_lz"]) > 0
-    lz_only = lambda c, p: (losses.ppo_objective(c, nets, p, batch, exp_b)[0]  # noqa: E731
-                            - losses.ppo_objective(c.replace(lambda_z=0.0), nets, p, batch, exp_b)[0])
-    assert _norm(grad(cfg, lz_only, "actor")) > 0 and _norm(grad(cfg, lz_only, "psi")) == 0.0
-    assert "ppo_lz" not in losses.ppo_objective(old, nets, params, batch, exp_b)[1]
+    assert ("ppo_lz" in m) == in_ppo
+    if in_ppo:
+        assert float(m["ppo_lz"]) > 0
+        lz_only = lambda c, p: (losses.ppo_objective(c, nets, p, batch, exp_b)[0]  # noqa: E731
+                                - losses.ppo_objective(c.replace(lambda_z=0.0), nets, p, batch, exp_b)[0])
+        assert _norm(grad(cfg, lz_only, "actor")) > 0 and _norm(grad(cfg, lz_only, "psi")) == 0.0
 
 
 @pytest.mark.parametrize("method", ["ma_infogail", "diayn", "cogail"])

@@ -74,13 +74,6 @@ class TrainConfig:
     code_noise: float = 0.2
     history: int = 4  # K: psi reads s_{t-K..t} and a^H_{t-1}
     lambda_z: float = 0.05  # the paper gives no value; 1.0 erodes interpolation (README)
-    # where L_z's co-policy part is optimised. "ppo" (InfoGAIL's joint policy objective): psi minimises L_z in
-    # the aux step with the co-policy held fixed, and the co-policy minimises lambda_z x L_z (psi held fixed) on
-    # the rollout's own steps inside the PPO step, so that lambda_z weighs L_z against the GAIL surrogate.
-    # "aux" (before 2026-11-23): both in the aux step, where Adam rescales each parameter's gradient: without
-    # L_a (ma_infogail) the human's output weights see L_z alone there, lambda_z no longer scales anything, and
-    # L_z drove the human away from the demonstrations (interpolation 0 %; docs/notes.md)
-    lz_step: str = "ppo"
     lambda_a: float = 1.0
     diversity_coef: float = 0.1  # DIAYN: weight of the diversity reward
     la_codes: str = "demo"  # L_a's code: "psi" (the paper: psi of each step's history) or "demo" (one learned
@@ -173,8 +166,6 @@ class TrainConfig:
             raise ConfigError(
                 f"num-envs x unroll-length ({self.steps_per_update}) must be divisible by num-minibatches "
                 f"({self.num_minibatches})")
-        if self.lz_step not in ("ppo", "aux"):
-            raise ConfigError(f"lz-step must be ppo or aux, got {self.lz_step!r}")
         if self.disc_loss not in ("auto", "bce", "lsgan"):
             raise ConfigError(f"disc-loss must be auto, bce or lsgan, got {self.disc_loss!r}")
         return self

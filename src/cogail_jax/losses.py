@@ -87,7 +87,7 @@ def code_loss(psi_apply, actor_apply, params, batch, human_size, train="both"):
     """L_z on generated data: psi(s_{t-K..t}, mu_H(s_{t-1}, z)) should recover z; the human action in the
     history is the policy mean, so the gradient reaches the co-policy. ``train``: "both", "psi" (the
     co-policy held fixed: psi's part, in the aux step) or "policy" (psi held fixed: the co-policy's part, in
-    the PPO step; ``lz_step``)."""
+    the PPO step; ``lz_in_ppo``)."""
     sg = jax.lax.stop_gradient
     params = {**params, "actor": sg(params["actor"]) if train == "psi" else params["actor"],
               "psi": sg(params["psi"]) if train == "policy" else params["psi"]}
@@ -186,8 +186,8 @@ def objective_terms(cfg: TrainConfig) -> frozenset[str]:
     """Exactly which terms a preset optimises:
 
     * ``gail_human`` / ``gail_robot``: PPO on the discriminator's reward moves the human / robot actions
-    * ``L_z``: psi and the co-policy on code reconstruction from generated data (InfoGAIL); with
-      ``lz_step="ppo"`` psi's part in the aux step, the co-policy's in the PPO step
+    * ``L_z``: psi and the co-policy on code reconstruction from generated data (InfoGAIL); without L_a
+      psi's part in the aux step, the co-policy's in the PPO step (``lz_in_ppo``)
     * ``L_a``: behaviour reconstruction of the expert human actions through psi's code (Co-GAIL); the only
       term through which expert actions reach psi
     * ``L_r``: robot-action reconstruction on expert data (our addition, ``lambda_r`` > 0) on psi's code
@@ -224,6 +224,18 @@ def _code_net(cfg: TrainConfig, nets: Nets):
     return lambda _, h: jnp.zeros(h.shape[:-1] + (cfg.code_dim,))
 
 
+def lz_in_ppo(cfg: TrainConfig) -> bool:
+    """Whether L_z's co-policy part is optimised in the PPO step (psi's part stays in the aux step): for presets
+    with L_z but no L_a (MA-InfoGAIL). InfoGAIL's policy minimises its GAIL objective and lambda_z x L_z
+    together, and there lambda_z weighs L_z against the surrogate. In the aux step, where Co-GAIL optimises it
+    beside L_a, a preset without L_a gives the human's output weights gradient from L_z alone: Adam rescales
+    it to the full aux learning rate whatever lambda_z is, and MA-InfoGAIL's human left its demonstrations
+    (interpolation 0 % at paper budgets). Co-GAIL measured the same either way (docs/notes.md) and keeps the
+    aux step."""
+    terms = objective_terms(cfg)
+    return "L_z" in terms and "L_a" not in terms
+
+
 def expert_code(cfg: TrainConfig, params, batch):
     """The code the co-policy acts on in the expert-data terms of a preset without L_a (L_r, PPO+BC): each
     demonstration's own code from BC pre-training (``params["codes"]``, tanh-squashed, held fixed), or
@@ -252,7 +264,7 @@ def aux_objective(cfg: TrainConfig, nets: Nets, params, gen_batch, exp_batch):
     if gen_batch is not None:
         if "L_z" in on:
             terms["loss_z"] = (cfg.lambda_z, code_loss(nets.psi, nets.actor, params, gen_batch, nets.human_size,
-                                                       train="psi" if cfg.lz_step == "ppo" else "both"))
+                                                       train="psi" if lz_in_ppo(cfg) else "both"))
         if "diversity" in on:
             h = jnp.concatenate([gen_batch["hist"], gen_batch["prev_ah"]], -1)
             terms["loss_q"] = (1.0, diversity_q_loss(nets.psi, params, h, gen_batch["z"]))
@@ -272,7 +284,7 @@ def aux_objective(cfg: TrainConfig, nets: Nets, params, gen_batch, exp_batch):
 def ppo_objective(cfg: TrainConfig, nets: Nets, params, batch, exp_batch):
     """Clipped PPO on a minibatch; with ``ppo_bc``, + bc_coef x both agents' squared error on an expert
     minibatch, acting on psi's code of the expert history (held fixed: no gradient reaches psi; without L_a
-    the demonstration's code, ``expert_code``); with ``L_z`` and ``lz_step="ppo"``, + lambda_z x L_z on the
+    the demonstration's code, ``expert_code``); with ``L_z`` and no ``L_a`` (``lz_in_ppo``), + lambda_z x L_z on the
     minibatch's own generated steps, psi held fixed (InfoGAIL: the policy minimises the GAIL objective and
     lambda_z L_z together)."""
     total, m = ppo_loss(nets.actor, nets.critic, params, batch, cfg.clip_eps, cfg.value_coef, cfg.entropy_coef)
@@ -280,7 +292,7 @@ def ppo_objective(cfg: TrainConfig, nets: Nets, params, batch, exp_batch):
         la, lr = behaviour_loss(_code_net(cfg, nets), nets.actor, params, exp_batch, nets.human_size,
                                 psi_grad=False, z=expert_code(cfg, params, exp_batch))
         total, m = total + cfg.bc_coef * (la + lr), {**m, "ppo_bc": la + lr}
-    if "L_z" in objective_terms(cfg) and cfg.lz_step == "ppo":
+    if lz_in_ppo(cfg):
         lz = code_loss(nets.psi, nets.actor, params, batch, nets.human_size, train="policy")
         total, m = total + cfg.lambda_z * lz, {**m, "ppo_lz": lz}
     return total, m
@@ -327,5 +339,5 @@ def preset_table_markdown() -> str:
         "\n\nL_r (`lambda_r`, default 1), BC pre-training (`bc_steps`) and PPO+BC (`bc_coef`, default 0) are our "
         "additions, shared by every preset that has the agent they train (shown switched on). Without L_a, psi "
         "learns nothing from expert actions: L_r and PPO+BC act on each demonstration's code from BC pre-training "
-        "(`losses.expert_code`), and L_z's co-policy part is in the PPO step (`lz_step`); without a strategy code "
+        "(`losses.expert_code`), and L_z's co-policy part is in the PPO step (`losses.lz_in_ppo`); without a strategy code "
         "(`ma_gail`, `bc_gail`, `bc_single`) the co-policy sees z = 0. `bc_gail`'s human is frozen after BC.")

@@ -309,7 +309,7 @@ def ppo_update(ctx: Context, state: TrainState, traj, adv, ret, key, expert):
     mean, log_std = nets.actor(state.params["actor"], obs_n, z)
     logp_old = jax.lax.stop_gradient(gaussian_log_prob(mean, log_std, action))
     flat = {"obs": obs_n, "z": z, "action": action, "logp": logp_old, "adv": adv.reshape(n), "ret": ret.reshape(n)}
-    if "L_z" in on and cfg.lz_step == "ppo":  # L_z's co-policy part, on the rollout's own steps
+    if losses.lz_in_ppo(cfg):  # L_z's co-policy part, on the rollout's own steps
         hist = traj["hist"].reshape((n,) + traj["hist"].shape[2:])
         flat.update(hist=history_input(state.norm, hist), prev_obs=normalize(state.norm, hist[:, -2]),
                     first=traj["first"].reshape(n))

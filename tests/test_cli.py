@@ -56,7 +56,6 @@ def test_bench_tiny_writes_json(tmp_path, monkeypatch):
 
     monkeypatch.setenv("COGAIL_DATA", str(tmp_path / "data"))
     monkeypatch.setitem(data.DEFAULT_NUM, "fetchq", 4)
-    monkeypatch.setitem(data.DEFAULT_VARIED, "fetchq", 0)
     out = tmp_path / "bench.json"
     assert cli.main(["bench", "fetchq", str(out), "--sizes", "4", "--steps", "4", "--unroll", "8", "--calls", "1"]) == 0
     rows = json.loads(out.read_text())["rows"]

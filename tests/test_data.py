@@ -62,7 +62,6 @@ def test_loader_not_hdf5_and_missing(fetchq, tmp_path):
 def test_default_demos_are_cached(fetchq, tmp_path, monkeypatch):
     monkeypatch.setenv("COGAIL_DATA", str(tmp_path))
     monkeypatch.setitem(data.DEFAULT_NUM, "fetchq", 5)
-    monkeypatch.setitem(data.DEFAULT_VARIED, "fetchq", 0)
     p = data.ensure_default_demos(fetchq, "train", verbose=False)
     assert p.exists() and data.load_demos(p, fetchq).num == 5
     mtime = p.stat().st_mtime
@@ -83,7 +82,6 @@ def test_default_demos_of_another_size_get_their_own_file(fetchq, tmp_path, monk
 
     monkeypatch.setenv("COGAIL_DATA", str(tmp_path))
     monkeypatch.setitem(data.DEFAULT_NUM, "fetchq", 5)
-    monkeypatch.setitem(data.DEFAULT_VARIED, "fetchq", 0)
     p5 = data.ensure_default_demos(fetchq, "train", verbose=False)
     p7 = data.ensure_default_demos(fetchq, "train", verbose=False, num=7)
     assert p7 != p5 and p7.name == "fetchq_uniform_train_7.hdf5" and p5.name == "fetchq_uniform_train.hdf5"
@@ -95,86 +93,6 @@ def test_default_demos_of_another_size_get_their_own_file(fetchq, tmp_path, monk
     assert int(s.expert["demo"].max()) + 1 == 7
     with pytest.raises(ConfigError, match="num_demos"):
         TrainConfig(num_demos=-1).validate()
-
-
-def _small_defaults(monkeypatch, tmp_path, varied=1):
-    """Default splits of 3 fetchq team demonstrations and ``varied`` varied humans per variation, under tmp_path."""
-    monkeypatch.setenv("COGAIL_DATA", str(tmp_path))
-    for table in (data.DEFAULT_NUM, data.DEFAULT_VALIDATION, data.DEFAULT_TEST):
-        monkeypatch.setitem(table, "fetchq", 3)
-    monkeypatch.setitem(data.DEFAULT_VARIED, "fetchq", varied)
-
-
-def _variations(path) -> list[str]:
-    with h5py.File(path) as f:
-        return [f["data"][f"demo_{i}"].attrs["variation"] for i in range(len(f["data"]))]
-
-
-def test_default_train_demos_add_varied_humans(fetchq, tmp_path, monkeypatch):
-    """The default training set: the team's demonstrations, then DEFAULT_VARIED varied humans per variation (each
-    successful with its strategy when re-simulated, tagged with its variation); validation and test get none."""
-    from cogail_envs.teams import VARIATIONS
-
-    from cogail_jax import robustness
-
-    _small_defaults(monkeypatch, tmp_path)
-    p = data.ensure_default_demos(fetchq, "train", verbose=False)
-    assert p.name == "fetchq_uniform_train.hdf5" and _variations(p) == [""] * 3 + list(VARIATIONS)
-    with h5py.File(p) as f:
-        assert f.attrs["varied_per_variation"] == 1
-    d = data.load_demos(p, fetchq, require_init=True)
-    assert np.isin(d.strategy, [1, 2, 3, 4]).all() and (d.metrics["success"] > 0).all()
-    assert (d.length > 10).all() and (d.length <= fetchq.max_episode_steps).all()
-    rep = robustness.validate_episodes(fetchq, d.init[3:], d.actions_human[3:], d.actions_robot[3:], batch=4)
-    assert (rep["success"] > 0).all() and (rep["executed"] == d.strategy[3:]).all()
-    np.testing.assert_array_equal(rep["length"], d.length[3:])
-    for split in ("validation", "test"):
-        q = data.ensure_default_demos(fetchq, split, verbose=False)
-        assert _variations(q) == [""] * 3
-        with h5py.File(q) as f:
-            assert f.attrs["varied_per_variation"] == 0
-
-
-def test_default_train_demos_of_another_varied_count(fetchq, tmp_path, monkeypatch, capsys):
-    """varied=0 gets a file of its own with the same team demonstrations; a cached file made with another count
-    (or before varied humans, no attribute) is regenerated."""
-    _small_defaults(monkeypatch, tmp_path)
-    p0 = data.ensure_default_demos(fetchq, "train", verbose=False, varied=0)
-    p1 = data.ensure_default_demos(fetchq, "train", verbose=False)
-    assert p0.name == "fetchq_uniform_train_v0.hdf5" and p1.name == "fetchq_uniform_train.hdf5"
-    assert _variations(p0) == [""] * 3 and len(_variations(p1)) == 9
-    d0, d1 = data.load_demos(p0, fetchq), data.load_demos(p1, fetchq)
-    np.testing.assert_array_equal(d0.obs, d1.obs[:3, : d0.obs.shape[1]])
-    assert data.ensure_default_demos(fetchq, "train", verbose=False, varied=1) == p1  # the default count
-    with h5py.File(p1, "a") as f:
-        del f.attrs["varied_per_variation"]  # missing: 0
-    assert data.ensure_default_demos(fetchq, "train") == p1 and len(_variations(p1)) == 9
-    monkeypatch.setitem(data.DEFAULT_VARIED, "fetchq", 0)
-    assert data.ensure_default_demos(fetchq, "train") == p1 and _variations(p1) == [""] * 3
-    out = capsys.readouterr().out
-    assert "holds 0 varied-human episodes per variation, not 1: regenerating" in out
-    assert "holds 1 varied-human episodes per variation, not 0: regenerating" in out
-
-
-def test_varied_humans_only_in_the_train_split(fetchq, tmp_path):
-    import json
-
-    from cogail_envs.teams import VARIATIONS
-
-    from cogail_jax import robustness
-    from cogail_jax.config import ConfigError, TrainConfig
-
-    with pytest.raises(ValueError, match="train split only"):
-        data.ensure_default_demos(fetchq, "test", verbose=False, varied=1)
-    assert data.default_demo_path("fetchq", "validation", varied=0) == data.default_demo_path("fetchq", "validation")
-    seeds = {sp: {robustness.variation_seed(v, sp) for v in VARIATIONS} for sp in ("train", "validation", "test")}
-    assert not (seeds["train"] & seeds["validation"]) and not (seeds["train"] & seeds["test"])
-    with pytest.raises(ConfigError, match="varied_demos"):
-        TrainConfig(varied_demos=-2).validate()
-    saved = json.loads(TrainConfig().to_json())
-    del saved["varied_demos"]  # a run saved before the field: trained without varied humans
-    (tmp_path / "config.json").write_text(json.dumps(saved))
-    assert TrainConfig.load(tmp_path / "config.json").varied_demos == 0
 
 
 def test_ten_thousand_demos_one_call(fetchq):

@@ -134,7 +134,6 @@ def test_default_splits_are_disjoint(fetchq, tmp_path, monkeypatch):
     monkeypatch.setitem(data.DEFAULT_NUM, "fetchq", 12)
     monkeypatch.setitem(data.DEFAULT_VALIDATION, "fetchq", 12)
     monkeypatch.setitem(data.DEFAULT_TEST, "fetchq", 12)
-    monkeypatch.setitem(data.DEFAULT_VARIED, "fetchq", 1)  # the train file's varied humans too
     files = {sp: data.ensure_default_demos(fetchq, sp, verbose=False) for sp in data.SPLITS}
     assert data.ensure_default_demos(fetchq, "heldout", verbose=False) == files["test"]  # another name of test
     assert len({p.name for p in files.values()}) == 3

@@ -24,9 +24,6 @@ class TrainConfig:
     heldout: str | None = None  # test demonstrations for replay evaluation (default: the task's test split)
     validation: str | None = None  # validation demonstrations, for checkpoint selection (default: the task's own)
     num_demos: int = 0  # size of the generated default training set (0: the task's default, e.g. 120 for seqmanip)
-    # varied-human episodes per robustness variation added to the generated training set (-1: the task's default:
-    # 5 on fetchq, 0 on the MJX tasks); ignored with demos=FILE
-    varied_demos: int = -1
     mix: str = "uniform"  # strategy mixture of the default datasets (uniform, D1, D2)
     # the task's time limit in env steps, for training and evaluation (0: the task's own: fetchq 300, handover 300,
     # seqmanip 600). Generated demonstrations are made under the task's own limit either way.
@@ -159,8 +156,6 @@ class TrainConfig:
             raise ConfigError(f"max_episode_steps must be >= 0 (0: the task's own time limit), got {self.max_episode_steps}")
         if self.num_demos < 0:
             raise ConfigError(f"num_demos must be >= 0 (0: the task's default), got {self.num_demos}")
-        if self.varied_demos < -1:
-            raise ConfigError(f"varied_demos must be >= -1 (-1: the task's default), got {self.varied_demos}")
         if self.policy_cooldown < 0:
             raise ConfigError(f"policy_cooldown must be >= 0, got {self.policy_cooldown}")
         if self.bc_coef < 0:
@@ -194,8 +189,7 @@ class TrainConfig:
 
     @classmethod
     def load(cls, path: str | Path) -> "TrainConfig":
-        """A run's saved config; one saved without ``varied_demos`` was trained without varied-human episodes."""
-        return cls.from_dict({"varied_demos": 0, **json.loads(Path(path).read_text())})
+        return cls.from_dict(json.loads(Path(path).read_text()))
 
 
 def field_help() -> dict[str, object]:

@@ -3,14 +3,12 @@
 Schema (version 1)::
 
     file attrs:  task (str), schema_version (int), obs_dim, human_action_dim, robot_action_dim, init_dim,
-                 num_demos, mixture (str), seed (int), env_version (str),
-                 varied_per_variation (int; default files only, missing = 0)
+                 num_demos, mixture (str), seed (int)
     data/demo_<i>/obs            float32 (T, obs_dim)            state before each step
     data/demo_<i>/actions_human  float32 (T, human_action_dim)   the human's action at each step
     data/demo_<i>/actions_robot  float32 (T, robot_action_dim)   the robot's action at each step
     data/demo_<i>/init           float32 (init_dim,)             reset parameters (env.reset_from) [optional]
-    data/demo_<i> attrs:         strategy (int, 1..S; 0 = unknown), num_samples (int, = T),
-                                 variation (str; default files only: the varied human's variation, "" for the team)
+    data/demo_<i> attrs:         strategy (int, 1..S; 0 = unknown), num_samples (int, = T)
 
 Trials recorded by ``cogail play`` (:func:`append_demo`) follow the same schema (file attr mixture =
 "recorded") and add demo attrs method, run, seed, checkpoint, policy (the blind label), success (0/1),
@@ -40,11 +38,6 @@ DEFAULT_NUM = {"fetchq": 60, "handover": 160, "seqmanip": 120}
 DEFAULT_TEST = {"fetchq": 60, "handover": 60, "seqmanip": 60}
 DEFAULT_HELDOUT = DEFAULT_TEST
 DEFAULT_VALIDATION = {"fetchq": 100, "handover": 100, "seqmanip": 100}
-# Varied-human episodes per robustness variation (cogail_envs.teams.VARIATIONS; robustness.generate_varied from
-# the train seeds 300 + variation index) added to a task's default training set after its team demonstrations:
-# on fetchq they raised in-distribution replay and replay against varied humans (GPU, 3 seeds, validation); the
-# MJX tasks were not measured. Validation and test sets never get any.
-DEFAULT_VARIED = {"fetchq": 5, "handover": 0, "seqmanip": 0}
 SPLITS = ("train", "validation", "test")
 SPLIT_SEEDS = {"train": 0, "test": 1, "validation": 2}
 
@@ -269,111 +262,44 @@ def default_count(task: str, split: str) -> int:
     return {"train": DEFAULT_NUM, "validation": DEFAULT_VALIDATION, "test": DEFAULT_TEST}[split][task]
 
 
-def default_varied(task: str, split: str, varied: int = -1) -> int:
-    """Varied-human episodes per variation in a default split: ``varied`` < 0 is the task's default for the train
-    split (``DEFAULT_VARIED``) and 0 for the others, which cannot have any."""
-    split = split_name(split)
-    if varied < 0:
-        return DEFAULT_VARIED[task] if split == "train" else 0
-    if varied and split != "train":
-        raise ValueError(f"varied-human episodes go into the train split only, not {split!r}: ask for varied=0")
-    return int(varied)
-
-
-def default_demo_path(task: str, split: str, mix: str = "uniform", num: int = 0, varied: int = -1) -> Path:
-    """The cached default dataset; ``num`` > 0 (other than the task's default count) and ``varied`` >= 0 (other
-    than the task's default) get a file of their own."""
+def default_demo_path(task: str, split: str, mix: str = "uniform", num: int = 0) -> Path:
+    """The cached default dataset; ``num`` > 0 (other than the task's default count) gets a file of its own."""
     split = split_name(split)
     count = f"_{num}" if num and num != default_count(task, split) else ""
-    k = default_varied(task, split, varied)
-    count += f"_v{k}" if k != default_varied(task, split) else ""
     return data_dir() / f"{task}_{mix}_{split}{count}.hdf5"
 
 
-def _stored_attrs(path: Path) -> dict:
-    """A file's attributes (text decoded); empty if it cannot be read."""
+def _stored_version(path: Path) -> str | None:
     import h5py
 
     try:
         with h5py.File(path, "r") as f:
-            return {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+            v = f.attrs.get("env_version")
+            return None if v is None else str(v.decode() if isinstance(v, bytes) else v)
     except OSError:
-        return {}
+        return None
 
 
-def _stored_version(path: Path) -> str | None:
-    v = _stored_attrs(path).get("env_version")
-    return None if v is None else str(v)
-
-
-def _stale_reason(path: Path, env, varied: int) -> str:
-    """Why a cached default file cannot be used ("" when it can)."""
-    attrs = _stored_attrs(path)
-    if attrs.get("env_version") is None or str(attrs["env_version"]) != env.version:
-        return "was made by another version of the task (physics, observation or team)"
-    stored = int(attrs.get("varied_per_variation", 0))
-    if stored != varied:
-        return f"holds {stored} varied-human episodes per variation, not {varied}"
-    return ""
-
-
-def _with_varied(env, eps, varied: int, mix: str):
-    """``eps`` followed by the first ``varied`` varied-human episodes of each robustness variation (train split
-    seeds), and each episode's variation ("" for those of ``eps``)."""
-    from cogail_envs.teams import VARIATIONS
-
-    from . import demos, robustness
-
-    parts, tags = [eps], [""] * len(eps.length)
-    for v in VARIATIONS:
-        ve, _ = robustness.generate_varied(env, v, varied, mix=mix, seed=robustness.variation_seed(v, "train"))
-        parts.append(demos.Episodes(*(getattr(ve, k) for k in demos.Episodes._fields)))
-        tags += [v] * len(ve.length)
-    return demos.concatenate(parts), tags
-
-
-def _save_default(path: Path, env, eps, tags: list[str], varied: int, mix: str, seed: int) -> Path:
-    """``save_demos`` plus the file's ``varied_per_variation`` and each demo's ``variation``, written atomically."""
-    import h5py
-
-    tmp = path.with_name(f"{path.name}.{os.getpid()}.default.hdf5")
-    save_demos(tmp, env, eps, mixture=mix, seed=seed)
-    with h5py.File(tmp, "a") as f:
-        f.attrs["varied_per_variation"] = int(varied)
-        for i, v in enumerate(tags):
-            f["data"][f"demo_{i}"].attrs["variation"] = v
-    os.replace(tmp, path)
-    return path
-
-
-def ensure_default_demos(env, split: str = "train", mix: str = "uniform", verbose: bool = True, num: int = 0,
-                         varied: int = -1) -> Path:
+def ensure_default_demos(env, split: str = "train", mix: str = "uniform", verbose: bool = True, num: int = 0) -> Path:
     """Path of the default dataset of a task (``train``, ``validation`` or ``test``, also called ``heldout``),
     generating it on first use from the split's own generator seed (``SPLIT_SEEDS``); ``num`` > 0
-    asks for that many scripted demonstrations instead of the task's default count. The train split adds
-    ``varied`` varied-human episodes per robustness variation after them (< 0: the task's ``DEFAULT_VARIED``;
-    > 0 on another split is a ``ValueError``)."""
+    asks for that many scripted demonstrations instead of the task's default count."""
     from . import demos
 
-    varied = default_varied(env.name, split, varied)
-    path = default_demo_path(env.name, split, mix, num, varied)
+    path = default_demo_path(env.name, split, mix, num)
     if path.exists():
-        why = _stale_reason(path, env, varied)
-        if not why:
+        if _stored_version(path) == env.version:
             return path
         if verbose:
-            print(f"{path} {why}: regenerating it", flush=True)
+            print(f"{path} was made by another version of the task (physics, observation or team): regenerating it",
+                  flush=True)
     split = split_name(split)
     num = num or default_count(env.name, split)
     seed = SPLIT_SEEDS[split]  # one generator seed per split: the splits are disjoint
     if verbose:
-        extra = f" and {varied} varied-human episodes per variation" if varied else ""
-        print(f"making {num} {split} demonstrations{extra} for {env.name} (mixture {mix}) -> {path}", flush=True)
+        print(f"making {num} {split} demonstrations for {env.name} (mixture {mix}) -> {path}", flush=True)
     eps = demos.generate(env, num, mix=mix, seed=seed)
     ok = eps.success > 0
     if not ok.all():  # keep successful demonstrations only
         eps = demos.select(eps, ok)
-    tags = [""] * len(eps.length)
-    if varied:
-        eps, tags = _with_varied(env, eps, varied, mix)
-    return _save_default(path, env, eps, tags, varied, mix, seed)
+    return save_demos(path, env, eps, mixture=mix, seed=seed)

@@ -100,18 +100,3 @@ def select(episodes: Episodes, keep: np.ndarray) -> Episodes:
     return Episodes(*[v[keep] if isinstance(v, np.ndarray) else
                       ({k: np.asarray(x)[keep] for k, x in v.items()} if isinstance(v, dict) else v)
                       for v in episodes])
-
-
-def concatenate(parts: list[Episodes]) -> Episodes:
-    """The episodes of ``parts`` one after another, time axes zero-padded to the longest."""
-    T = max(p.obs.shape[1] for p in parts)
-
-    def cat(xs):
-        xs = [np.asarray(x) for x in xs]
-        if xs[0].ndim == 3:  # (N, T, dim)
-            xs = [np.pad(x, ((0, 0), (0, T - x.shape[1]), (0, 0))) for x in xs]
-        return np.concatenate(xs)
-
-    return Episodes(*[cat([getattr(p, f) for p in parts]) if f != "final_metrics" else
-                      {k: cat([p.final_metrics[k] for p in parts]) for k in parts[0].final_metrics}
-                      for f in Episodes._fields])

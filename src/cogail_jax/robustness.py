@@ -11,9 +11,8 @@ replayed open-loop from the recorded initial state, make the env report success 
 :func:`ensure_robustness_sets` writes (and caches) one HDF5 file per variation in the dataset schema
 (:mod:`cogail_jax.data`), ``data/<task>_<mix>_robust-<variation>.hdf5``, generated in jitted, vmapped
 batches (one compiled rollout serves every variation: the variation id is an argument, not a constant).
-Generator seeds: 100 + variation index (test split), 200 + index (validation split), 300 + index (the varied
-episodes of the default training set, :func:`cogail_jax.data.ensure_default_demos`), distinct from the default
-sets' 0 (train), 1 (test) and 2 (validation). File attrs: the usual ones plus ``variation``,
+Generator seeds: 100 + variation index (test split), 200 + index (validation split), distinct from the
+default sets' 0 (train), 1 (test) and 2 (validation). File attrs: the usual ones plus ``variation``,
 ``variation_id``, ``split``, ``requested``, ``attempted``, ``team_success``, ``validated``, ``yield`` and
 ``robust_version``; each demo carries ``gen_index`` (its episode index in the generator: the same key with
 no variation gives the unvaried "twin" episode, same initial state, strategy and within-strategy draws).
@@ -42,7 +41,7 @@ from cogail_envs.teams import VARIATIONS, variation_id
 from .data import DEFAULT_HELDOUT, _stored_version, data_dir, load_demos, save_demos
 
 ROBUST_VERSION = 2  # bump when the variations change (cached files are regenerated)
-SPLIT_SEED = {"test": 100, "validation": 200, "train": 300}
+SPLIT_SEED = {"test": 100, "validation": 200}
 PREFIX = "robust-"
 
 __all__ = ["VARIATIONS", "ensure_robustness_sets", "generate_varied", "blind_robot_success", "robustness_figure",

@@ -57,8 +57,7 @@ def build(cfg: TrainConfig, need_heldout: bool = True, need_validation: bool | N
     env = task_env = cogail_envs.make_env(cfg.task)  # task_env: the task's own limit (the cached demos')
     if cfg.max_episode_steps and cfg.max_episode_steps != env.max_episode_steps:
         env = cogail_envs.make_env(cfg.task, max_episode_steps=cfg.max_episode_steps)
-    train_path = cfg.demos or data.ensure_default_demos(task_env, "train", cfg.mix, num=cfg.num_demos,
-                                                        varied=cfg.varied_demos)
+    train_path = cfg.demos or data.ensure_default_demos(task_env, "train", cfg.mix, num=cfg.num_demos)
     demos = data.load_demos(train_path, env)
     expert = train.expert_arrays(demos, cfg.history)
     heldout, validation, files = None, None, {}

@@ -77,5 +77,9 @@ MIXES ?= uniform
 paper: install
 	$(BIN)/python experiments/paper.py --tasks $(TASKS) --methods $(METHODS) --mixes $(MIXES) --out results/paper
 
+# The throughput table of TASK, then the seconds per phase (demos, bc, compile, train, eval, write) of every
+# run under runs/ that has a speed.json (e.g. the `make train` runs of each task).
 bench: install
 	$(BIN)/cogail bench $(TASK) runs/bench-$(TASK).json
+	@runs=$$(ls runs/*/speed.json 2>/dev/null | xargs -r -n1 dirname); \
+	if [ -n "$$runs" ]; then $(BIN)/cogail bench --phases $$runs; fi

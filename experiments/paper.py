@@ -78,8 +78,9 @@ def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1,
     resume = saved.exists() and TrainConfig.load(saved) == cfg  # the same resolved config: resume / reuse
     if saved.exists() and not resume:
         raise SystemExit(f"{run} holds a run of another config: remove it")
-    trainer.train_run(cfg, run, resume=resume, progress=False)
-    res = trainer.eval_run(run, progress=False, every=every, robustness=True, ckpt_batch=ckpt_batch)
+    kept = {}
+    trainer.train_run(cfg, run, resume=resume, progress=False, keep=kept)
+    res = trainer.eval_run(run, progress=False, every=every, robustness=True, ckpt_batch=ckpt_batch, memory=kept)
     return {**{k: res[k] for k in KEEP if k in res}, "config_hash": config_hash(cfg), "run": str(run),
             "eval_every": every}
 

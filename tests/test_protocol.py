@@ -159,7 +159,9 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     val = data.save_demos(tmp_path / "val.hdf5", fetchq, demos.generate(fetchq, 6, seed=2), seed=2)
     cfg = tiny_cfg.replace(seeds=(3, 5), validation=str(val))
     run = tmp_path / "run"
-    trainer.train_run(cfg, run, progress=False)
+    kept = {}
+    trainer.train_run(cfg, run, progress=False, keep=kept)
+    assert sorted(kept) == [2, 4, 6]  # every checkpoint the training wrote (update 0 is not evaluated)
     res = trainer.eval_run(run, progress=False, extra_sets={"again": demo_files[1]})
     assert res["checkpoints"] == [2, 4, 6]
     assert res["splits"]["validation"] == {"file": str(val), "episodes": 6}
@@ -202,13 +204,25 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     # still those of its own episodes
     assert again["extra_sets"]["again"]["selected"]["per_seed"] == sel["replay"]["per_seed"]
     assert again["extra_sets"]["val-again"]["selected"]["per_seed"] == sel["validation_replay"]["per_seed"]
+    # the checkpoints kept in memory by the training loop, all in one program: no checkpoint read from disk, and
+    # the same results as reading each one back
+    monkeypatch.setattr(trainer.ckpt, "restore", lambda *a, **k: pytest.fail("a checkpoint was read from disk"))
+    mem = trainer.eval_run(run, progress=False, ckpt_batch=3, memory=kept)
+    monkeypatch.undo()
+    for key in ("replay_success", "validation_replay_success", "interpolation_success"):
+        assert mem["curves"][key] == res["curves"][key], key
+    assert mem["selected"] == sel and mem["paper_protocol"] == pp and mem["last"] == res["last"]
+    np.testing.assert_allclose(mem["latent_map"]["codes"], res["latent_map"]["codes"], rtol=1e-5, atol=1e-6)
+    assert mem["extra_sets"]["again"]["selected"] == again["extra_sets"]["again"]["selected"]
 
 
 def test_checkpoints_per_evaluation_program_default_by_backend(monkeypatch):
-    """None (the CLI's default): 1 checkpoint per program on the CPU, 8 on an accelerator."""
+    """None (the CLI's default): 1 checkpoint per program on the CPU; on an accelerator every checkpoint of the
+    run in one program (up to a cap)."""
     from cogail_jax import trainer
 
     monkeypatch.setattr(trainer.jax, "default_backend", lambda: "cpu")
-    assert trainer.default_ckpt_batch() == 1
+    assert trainer.default_ckpt_batch(34) == 1
     monkeypatch.setattr(trainer.jax, "default_backend", lambda: "gpu")
-    assert trainer.default_ckpt_batch() == 8
+    assert trainer.default_ckpt_batch(34) == 34
+    assert trainer.default_ckpt_batch(1000) == trainer.MAX_CKPT_BATCH

@@ -125,6 +125,38 @@ def save(mgr: ocp.CheckpointManager, step: int, state) -> None:
     mgr.wait_until_finished()
 
 
+class BackgroundSaver:
+    """Checkpoints written while training goes on. ``submit(step, state)`` copies the state on its devices (the
+    training call donates its input, so the copy is what gets written), returns the copy and writes it with
+    ``save`` in a worker thread; one save at a time (a new one waits for the previous). ``wait()`` returns once
+    the last submitted checkpoint is on disk and re-raises its error; ``close()`` waits, then stops the thread.
+    Each checkpoint is still atomic (``save``): a run killed mid-write resumes from the previous one."""
+
+    def __init__(self, mgr: ocp.CheckpointManager):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.mgr = mgr
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="checkpoint")
+        self._pending = None
+
+    def submit(self, step: int, state):
+        self.wait()
+        copy = jax.tree.map(jnp.copy, state)
+        self._pending = self._pool.submit(save, self.mgr, step, copy)
+        return copy
+
+    def wait(self) -> None:
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            pending.result()
+
+    def close(self) -> None:
+        try:
+            self.wait()
+        finally:
+            self._pool.shutdown()
+
+
 def steps(mgr: ocp.CheckpointManager) -> list[int]:
     return sorted(mgr.all_steps())
 

@@ -104,7 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(by default only the extra sets are replayed then)")
     e.add_argument("--ckpt-batch", type=_positive, default=None, metavar="N",
                    help="evaluate N checkpoints in one device program (vmapped; same results, more memory; "
-                        "default 8 on a GPU, 1 on the CPU)")
+                        "default: every checkpoint on a GPU, 1 on the CPU)")
     e.add_argument("--no-progress", action="store_true")
 
     pl = sub.add_parser("play", help="drive the human agent yourself in a local web page; the robot acts live",
@@ -302,10 +302,11 @@ def _dispatch(a) -> int:
         from .trainer import eval_run, train_run
 
         cfg = _config_from_args(a)
-        run = train_run(cfg, a.run, resume=a.resume, progress=not a.no_progress, devices=a.devices)
+        kept = {}  # each checkpoint's evaluation parameters, kept in memory: the evaluation reads none back
+        run = train_run(cfg, a.run, resume=a.resume, progress=not a.no_progress, devices=a.devices, keep=kept)
         print(f"trained: {run}")
         if a.eval:
-            res = eval_run(run, progress=not a.no_progress, robustness=a.robustness)
+            res = eval_run(run, progress=not a.no_progress, robustness=a.robustness, memory=kept)
             print((Path(run) / "results.md").read_text())
             del res
         return 0

@@ -204,36 +204,80 @@ def _postfix(metrics: dict, stats: LoopStats) -> dict:
     return post
 
 
-def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool, stop_after: int | None):
-    """Call the jitted chunk until the budget (or ``stop_after``), logging and checkpointing; returns LoopStats."""
+EVAL_PARAMS = ("actor", "psi")  # what evaluating a checkpoint reads of its parameters
+
+
+def eval_params(state) -> dict:
+    """What evaluating a checkpoint reads of its state: the actor's and psi's parameters and the observation
+    normaliser (seed axis first), on this process's first device, as ``checkpoint.restore`` puts them."""
+    sub = {"params": {k: state.params[k] for k in EVAL_PARAMS}, "norm": state.norm}
+    return jax.device_put(sub, jax.devices()[0])
+
+
+def _check_and_log(writers, metrics, update0: int, cfg: TrainConfig, saver) -> dict:
+    """One call's metrics to the host: stop on non-finite parameters, else log them to TensorBoard."""
+    metrics = jax.device_get(metrics)
+    if np.any(metrics["nonfinite"] > 0):
+        saver.wait()
+        u = update0 + int(np.argmax(np.any(metrics["nonfinite"] > 0, axis=1))) + 1
+        raise RunError(f"training diverged at update {u} (non-finite parameters); the last good "
+                       f"checkpoint (update {max(ckpt.steps(saver.mgr))}) is kept: lower --lr or change the seed")
+    _log_scalars(writers, metrics, update0, cfg.steps_per_update)
+    return metrics
+
+
+def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool, stop_after: int | None,
+                keep: dict | None = None):
+    """Call the jitted chunk until the budget (or ``stop_after``), logging and checkpointing; returns LoopStats.
+
+    The host never holds the device up: each call is dispatched before the previous call's metrics are logged,
+    and checkpoints are written in a background thread (``checkpoint.BackgroundSaver``). A checkpoint is saved
+    only after its metrics show finite parameters. ``keep``: filled with {update: eval_params(...)} of every
+    checkpoint written, so that ``eval_run`` need not read them back from disk."""
     from tensorboardX import SummaryWriter
     from tqdm import tqdm
 
     cfg, upc, total = s.cfg, s.cfg.updates_per_call, total_updates(s.cfg)
     writers = [SummaryWriter(str(run_dir / "tb" / f"seed_{sd}")) for sd in cfg.seeds]
     bar = tqdm(total=total, initial=start, unit="upd", disable=not progress, dynamic_ncols=True, file=sys.stdout)
+    saver = ckpt.BackgroundSaver(mgr)
     stats, t_loop = LoopStats(start, []), time.perf_counter()
+    pending = None  # (first update, device metrics) of the call not logged yet
+
+    def drain():
+        nonlocal pending
+        if pending is not None:
+            (u0, m), pending = pending, None
+            bar.set_postfix(_postfix(_check_and_log(writers, m, u0, cfg, saver), stats))
+
     try:
+        t_last = time.perf_counter()
         while stats.update < total and (stop_after is None or stats.update < stop_after):
-            t0 = time.perf_counter()
             state, metrics = s.chunk(state, s.expert)
-            metrics = jax.device_get(metrics)
-            stats.call_seconds.append(time.perf_counter() - t0)
-            if len(stats.call_seconds) > 1:  # the first call includes compilation
-                stats.steady_steps += upc * cfg.steps_per_update * len(cfg.seeds)
-            if np.any(metrics["nonfinite"] > 0):
-                u = stats.update + int(np.argmax(np.any(metrics["nonfinite"] > 0, axis=1))) + 1
-                raise RunError(f"training diverged at update {u} (non-finite parameters); the last good "
-                               f"checkpoint (update {max(ckpt.steps(mgr))}) is kept: lower --lr or change the seed")
-            _log_scalars(writers, metrics, stats.update, cfg.steps_per_update)
+            if not stats.call_seconds:  # the first call compiles: timed on its own
+                jax.block_until_ready(metrics)
+            drain()
+            pending = (stats.update, metrics)
             stats.update += upc
             if stats.update % cfg.checkpoint_every == 0 or stats.update >= total:
-                ckpt.save(mgr, stats.update, state)
-            stats.loop_seconds = time.perf_counter() - t_loop
+                drain()
+                copy = saver.submit(stats.update, state)
+                if keep is not None:
+                    keep[stats.update] = eval_params(copy)
+            now = time.perf_counter()
+            stats.call_seconds.append(now - t_last)
+            t_last = now
+            if len(stats.call_seconds) > 1:
+                stats.steady_steps += upc * cfg.steps_per_update * len(cfg.seeds)
+            stats.loop_seconds = now - t_loop
             stats.steady_seconds = stats.loop_seconds - stats.call_seconds[0]
             bar.update(upc)
-            bar.set_postfix(_postfix(metrics, stats))
+        drain()
+        saver.wait()
+        stats.loop_seconds = time.perf_counter() - t_loop
+        stats.steady_seconds = stats.loop_seconds - stats.call_seconds[0] if stats.call_seconds else 0.0
     finally:
+        saver.close()
         bar.close()
         for w in writers:
             w.close()
@@ -241,10 +285,11 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
 
 
 def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True,
-              stop_after: int | None = None, devices: str | int | None = None) -> Path:
+              stop_after: int | None = None, devices: str | int | None = None, keep: dict | None = None) -> Path:
     """Train (or resume) a run; returns the run directory. ``stop_after`` stops early after that many updates
     (tests use it to simulate an interrupted run). Records the time of each phase in RUN/speed.json
-    (``timing``; a resumed run adds to it)."""
+    (``timing``; a resumed run adds to it). ``keep``: a dict that receives each checkpoint's ``eval_params``
+    as it is written, for ``eval_run(..., memory=keep)``."""
     clock = timing.Phases()
     run_dir = Path(run_dir)
     cfg = prepare_run_dir(cfg, run_dir, resume)
@@ -254,7 +299,7 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
         s = build(cfg, need_heldout=False)
     mgr = ckpt.manager(run_dir)
     state, start = _start_state(s, mgr, run_dir, resume, devices, clock)
-    stats = _train_loop(s, state, mgr, run_dir, start, progress, stop_after)
+    stats = _train_loop(s, state, mgr, run_dir, start, progress, stop_after, keep)
     compile_s = timing.compile_estimate(stats.call_seconds)
     clock.add("compile", compile_s)
     clock.add("train", stats.loop_seconds - compile_s)
@@ -296,19 +341,26 @@ def _extra_set_checkpoints(res: dict) -> dict[str, int]:
     return cks
 
 
-def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict) -> dict:
+def _checkpoint_params(mgr, abstract, memory: dict | None, step: int) -> dict:
+    """``eval_params`` of checkpoint ``step``: from ``memory`` (kept by the training loop) or read from disk."""
+    if memory and step in memory:
+        return memory[step]
+    return eval_params(ckpt.restore(mgr, step, abstract))
+
+
+def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict, memory: dict | None = None) -> dict:
     """Replay each extra set at the selected and the paper-protocol replay checkpoints: all sets stacked into one
     batch (one compiled replay program, one call per checkpoint); returns {name: evaluate.summarize_extra_set(...)}."""
     replay = evaluate.make_replay_fn(s.cfg, s.env, s.nets)
     cks = _extra_set_checkpoints(res)
-    states = {st: ckpt.restore(mgr, st, abstract) for st in sorted(set(cks.values()))}
+    states = {st: _checkpoint_params(mgr, abstract, memory, st) for st in sorted(set(cks.values()))}
     eps = {name: evaluate.heldout_arrays(data.load_demos(path, s.env, require_init=True))
            for name, path in extra_sets.items()}
     if not eps:
         return {}
     batch, part = evaluate.stack_sets(eps, steps=s.env.max_episode_steps)
     arrays = {k: batch[k] for k in ("init", "ah", "length")}
-    succ = {key: np.asarray(jax.device_get(replay(states[st].params, states[st].norm, arrays))["success"])
+    succ = {key: np.asarray(jax.device_get(replay(states[st]["params"], states[st]["norm"], arrays))["success"])
             for key, st in cks.items()}
     return {name: evaluate.summarize_extra_set({key: x[:, part[name]] for key, x in succ.items()},
                                                eps[name]["strategy"], s.cfg.seeds, s.env.strategy_names, cks,
@@ -373,7 +425,7 @@ def eval_extra_sets(run_dir: str | Path, extra_sets: dict[str, str | Path]) -> d
 
 def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_file: str | Path | None = None,
              extra_sets: dict[str, str | Path] | None = None, ckpt_batch: int | None = None,
-             robustness: bool = False) -> dict:
+             robustness: bool = False, memory: dict | None = None) -> dict:
     """Evaluate every checkpoint of a run; write results.json / results.md and figures into the run dir.
 
     Every checkpoint and seed is evaluated on the test split (replay, interpolation, latent codes) and on the
@@ -392,7 +444,10 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
 
     ``ckpt_batch`` > 1: that many checkpoints are evaluated in one device program (their parameters stacked on a
     new axis, vmapped; the last group padded), with the same results as one at a time; memory grows with it.
-    None: ``default_ckpt_batch()`` (8 on an accelerator, 1 on the CPU).
+    None: ``default_ckpt_batch(...)`` (every checkpoint in one program on an accelerator, one at a time on the CPU).
+
+    ``memory``: {update: ``eval_params``} kept by the training loop (``train_run(..., keep=...)``): those
+    checkpoints are not read back from disk (the same values: the results are the same).
 
     The seconds spent evaluating and writing replace the ``eval`` and ``write`` phases of RUN/speed.json."""
     clock = timing.Phases()
@@ -408,12 +463,12 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
         abstract = jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert))
         held, part = evaluate.stack_sets({"test": s.heldout, "validation": s.validation},
                                          steps=s.env.max_episode_steps)
-        per_ckpt, codes = _evaluate_checkpoints(s, mgr, abstract, steps, held, part, ckpt_batch, progress)
+        per_ckpt, codes = _evaluate_checkpoints(s, mgr, abstract, steps, held, part, ckpt_batch, progress, memory)
         if not per_ckpt:
             raise ckpt.nothing_restored(mgr, run_dir)
         res, at, lat = _summarize(s, per_ckpt, codes, part)
         if sets:
-            res["extra_sets"] = _replay_extra_sets(s, mgr, abstract, res, sets)
+            res["extra_sets"] = _replay_extra_sets(s, mgr, abstract, res, sets, memory)
     with clock("write"):
         _write_eval_outputs(run_dir, s, res, at, lat, sets, robustness)
     timing.write(run_dir, timing.merge_eval(timing.read(run_dir), clock, **timing.device_info()))
@@ -438,14 +493,18 @@ def _eval_setup(run_dir: Path, sets: dict[str, str], robustness: bool) -> tuple[
     return s, sets
 
 
-def default_ckpt_batch() -> int:
-    """Checkpoints per evaluation program when none is given: 8 on an accelerator (wider batches, fewer calls), 1 on
-    the CPU (where a wider batch only costs memory and compilation)."""
-    return 1 if jax.default_backend() == "cpu" else 8
+MAX_CKPT_BATCH = 64  # checkpoints per evaluation program on an accelerator, at most
+
+
+def default_ckpt_batch(checkpoints: int) -> int:
+    """Checkpoints per evaluation program when none is given: on an accelerator all of them (up to
+    ``MAX_CKPT_BATCH``), so one device program evaluates the run; 1 on the CPU (where a wider batch only costs
+    memory and compilation)."""
+    return 1 if jax.default_backend() == "cpu" else max(1, min(int(checkpoints), MAX_CKPT_BATCH))
 
 
 def _evaluate_checkpoints(s: Setup, mgr, abstract, steps: list[int], held: dict, part: dict, ckpt_batch: int,
-                          progress: bool) -> tuple[dict, object]:
+                          progress: bool, memory: dict | None = None) -> tuple[dict, object]:
     """{step: _split_sets(...)} for every checkpoint that restores (``ckpt_batch`` of them per device call), and
     the interpolation codes."""
     from tqdm import tqdm
@@ -453,14 +512,14 @@ def _evaluate_checkpoints(s: Setup, mgr, abstract, steps: list[int], held: dict,
     cfg = s.cfg
     seeds_eval, codes = evaluate.make_eval_fns(cfg, s.env, s.nets)
     per_ckpt = {}
-    ckpt_batch = max(1, min(int(ckpt_batch or default_ckpt_batch()), len(steps)))
+    ckpt_batch = max(1, min(int(ckpt_batch or default_ckpt_batch(len(steps))), len(steps)))
     many = evaluate.make_checkpoints_eval_fn(cfg, s.env, s.nets) if ckpt_batch > 1 else None
     bar = tqdm(total=len(steps), desc="eval", disable=not progress, file=sys.stdout)
     for i in range(0, len(steps), ckpt_batch):
         group = []
         for step in steps[i:i + ckpt_batch]:
             try:
-                state = ckpt.restore(mgr, step, abstract)
+                state = _checkpoint_params(mgr, abstract, memory, step)
             except ckpt.CheckpointError as e:
                 print(f"warning: {e}; skipped", flush=True)
                 continue
@@ -468,13 +527,13 @@ def _evaluate_checkpoints(s: Setup, mgr, abstract, steps: list[int], held: dict,
         bar.update(len(steps[i:i + ckpt_batch]))
         if many is None:
             for step, state in group:
-                out = jax.device_get(seeds_eval(state.params, state.norm, held, jax.random.PRNGKey(12345)))
+                out = jax.device_get(seeds_eval(state["params"], state["norm"], held, jax.random.PRNGKey(12345)))
                 per_ckpt[step] = _split_sets(out, part)
         elif group:
             pad = [st for _, st in group] + [group[-1][1]] * (ckpt_batch - len(group))  # one compiled shape
             stack = lambda *x: jax.numpy.stack(x)  # noqa: E731
-            out = jax.device_get(many(jax.tree.map(stack, *[st.params for st in pad]),
-                                      jax.tree.map(stack, *[st.norm for st in pad]), held, jax.random.PRNGKey(12345)))
+            out = jax.device_get(many(jax.tree.map(stack, *[st["params"] for st in pad]),
+                                      jax.tree.map(stack, *[st["norm"] for st in pad]), held, jax.random.PRNGKey(12345)))
             for j, (step, _) in enumerate(group):
                 per_ckpt[step] = _split_sets(jax.tree.map(lambda x: x[j], out), part)
     bar.close()

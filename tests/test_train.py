@@ -164,12 +164,13 @@ def test_bc_pretraining_beats_untrained_policy(tiny_cfg, fetchq):
     expert = train.expert_arrays(demos, tiny_cfg.history)
     cfg = tiny_cfg.replace(bc_steps=3000, seeds=(1,))
     init, _, nets = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
-    ev, _ = evaluate.make_eval_fns(cfg, fetchq, nets)
+    ev = evaluate.make_eval_fn(cfg, fetchq, nets)
+    one = lambda t: jax.tree.map(lambda x: x[None], t)  # noqa: E731  (one checkpoint)
     cfg0 = cfg.replace(bc_steps=0)
     init0, _, _ = train.make_train_fns(cfg0, fetchq, train.fit_normalizer(expert))
     s0, s1 = init0((1,), expert), init((1,), expert)
-    r0 = jax.device_get(ev(s0.params, s0.norm, held, jax.random.PRNGKey(0)))["replay_success"].mean()
-    r1 = jax.device_get(ev(s1.params, s1.norm, held, jax.random.PRNGKey(0)))["replay_success"].mean()
+    r0 = jax.device_get(ev(one(s0.params), one(s0.norm), held))["replay_success"].mean()
+    r1 = jax.device_get(ev(one(s1.params), one(s1.norm), held))["replay_success"].mean()
     assert r0 == 0.0 and r1 > 0.0, (r0, r1)  # 12 held-out replays: untrained never succeeds
 
 

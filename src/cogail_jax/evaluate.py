@@ -32,6 +32,9 @@ import numpy as np
 from .config import TrainConfig
 
 
+EVAL_SEED = 12345  # the interpolation rollouts' initial states: split(PRNGKey(EVAL_SEED), eval_codes), one per code
+
+
 def interpolation_codes(n: int) -> jnp.ndarray:
     """n codes uniformly over (-1, 1)^2: a sqrt(n) x sqrt(n) grid of cell centres (n a square), else random."""
     k = int(round(math.sqrt(n)))
@@ -76,81 +79,84 @@ def _freeze(fin, old, new):
     return jax.tree.map(lambda a, b: jnp.where(fin, a, b), old, new)
 
 
-def _replay_one_fn(cfg: TrainConfig, env, nets):
-    """``replay_one(params, norm, init, ah, length) -> final metrics`` of one replay episode."""
-    K, Ah = cfg.history, env.human_action_size
-    Tenv = env.max_episode_steps
-    _, robot_step = make_robot_step(cfg, env, nets)
+def _flat(x):
+    """(P, E, ...) -> (P * E, ...) (explicit sizes: MJX states hold empty arrays)."""
+    return x.reshape((x.shape[0] * x.shape[1],) + x.shape[2:])
 
-    def replay_one(params, norm, init, ah, length):
-        state = env.reset_from(init)
-        hist = jnp.repeat(state.obs[None], K + 1, 0)
+
+def _episodes_fn(cfg: TrainConfig, env, nets):
+    """``run(params, norm, eps) -> final metrics (P, E)``: every episode of ``eps`` under every parameter set
+    (``params`` / ``norm`` with a leading axis P: checkpoints x seeds), in one ``lax.scan`` over time.
+
+    ``eps`` (leading axis E): ``init`` (initial conditions), ``replay`` (bool), ``code`` (the interpolation code),
+    ``ah`` / ``length`` (the recorded human of a replay). A replay episode's robot acts from pi_R(s, psi(h)) and its
+    human replays ``ah``; an interpolation episode's co-policy acts for both agents with ``code``; both
+    deterministic (action means), the episode frozen from its end on. The environment steps once per time step
+    for all P x E episodes on one flat axis, so the physics is traced (and compiled) once, under one vmap."""
+    actor = nets["actor"].apply
+    Ah, Tenv = env.human_action_size, env.max_episode_steps
+    psi_code, _ = make_robot_step(cfg, env, nets)
+
+    def act(params, norm, obs, hist, prev_ah, ep, t):
+        z = jnp.where(ep["replay"], psi_code(params, norm, hist, prev_ah),
+                      ep["code"] if cfg.use_code else jnp.zeros_like(ep["code"]))
+        mean, _ = actor(params["actor"], (obs - norm["mean"]) / norm["std"], z)
+        a = jnp.clip(mean, -1, 1)
+        recorded = jnp.where(t < ep["length"], ep["ah"][jnp.minimum(t, ep["ah"].shape[0] - 1)], 0.0)
+        a_h = jnp.where(ep["replay"], recorded, a[:Ah])
+        return jnp.concatenate([a_h, a[Ah:]]), a_h
+
+    per_param = jax.vmap(act, in_axes=(None, None, 0, 0, 0, 0, None))  # episodes
+    act_all = jax.vmap(per_param, in_axes=(0, 0, 0, 0, 0, None, None))  # parameter sets
+
+    def run(params, norm, eps):
+        P, E = jax.tree.leaves(params)[0].shape[0], eps["init"].shape[0]
+        first = jax.vmap(env.reset_from)(eps["init"])
+        state = jax.tree.map(lambda x: _flat(jnp.broadcast_to(x, (P,) + x.shape)), first)
+        hist = jnp.repeat(state.obs[:, None], cfg.history + 1, 1)
 
         def body(carry, t):
             state, hist, prev_ah, fin = carry
-            a_h = jnp.where(t < length, ah[jnp.minimum(t, ah.shape[0] - 1)], 0.0)
-            nxt, hist, _, _ = robot_step(params, norm, state, hist, prev_ah, a_h)
-            return (_freeze(fin, state, nxt), hist, a_h, fin | (nxt.done > 0)), None
+            unflat = lambda x: x.reshape((P, E) + x.shape[1:])  # noqa: E731
+            action, a_h = act_all(params, norm, unflat(state.obs), unflat(hist), unflat(prev_ah), eps, t)
+            nxt = jax.vmap(env.step)(state, _flat(action))
+            hist = jnp.concatenate([hist[:, 1:], nxt.obs[:, None]], 1)
+            return (jax.vmap(_freeze)(fin, state, nxt), hist, _flat(a_h), fin | (nxt.done > 0)), None
 
-        carry = (state, hist, jnp.zeros((Ah,)), jnp.array(False))
+        carry = (state, hist, jnp.zeros((P * E, Ah)), jnp.zeros((P * E,), bool))
         (state, _, _, _), _ = jax.lax.scan(body, carry, jnp.arange(Tenv))
-        return state.metrics
+        return jax.tree.map(lambda x: x.reshape((P, E) + x.shape[1:]), state.metrics)
 
-    return replay_one
+    return run
+
+
+def replay_episodes(episodes: dict, code_dim: int) -> dict:
+    """Replay episodes (``init``, ``ah``, ``length``) in the form ``_episodes_fn`` runs."""
+    n = episodes["length"].shape[0]
+    return {"init": episodes["init"], "ah": episodes["ah"], "length": episodes["length"],
+            "replay": jnp.ones((n,), bool), "code": jnp.zeros((n, code_dim), jnp.float32)}
 
 
 def make_replay_fn(cfg: TrainConfig, env, nets):
-    """Jitted ``replay(params, norm, episodes) -> final metrics (seeds, episodes)``: the replay protocol alone,
-    vmapped over seeds (leading axis of params / norm) and episodes (``episodes``: ``heldout_arrays`` without
-    ``strategy``). Used for the extra test sets (``eval_run(extra_sets=...)``)."""
-    replay_one = _replay_one_fn(cfg, env, nets)
-
-    def replay(params, norm, ep):
-        return jax.vmap(replay_one, in_axes=(None, None, 0, 0, 0))(params, norm, ep["init"], ep["ah"], ep["length"])
-
-    return jax.jit(jax.vmap(replay, in_axes=(0, 0, None)))
+    """Jitted ``replay(params, norm, episodes) -> final metrics (seeds, episodes)``: the replay protocol alone
+    (params / norm with a leading seed axis; ``episodes``: ``heldout_arrays`` without ``strategy``). Used for the
+    extra test sets (``eval_run(extra_sets=...)``)."""
+    run = _episodes_fn(cfg, env, nets)
+    return jax.jit(lambda params, norm, ep: run(params, norm, replay_episodes(ep, cfg.code_dim)))
 
 
-def make_eval_fns(cfg: TrainConfig, env, nets):
-    """Jitted ``seeds_eval(params, norm, episodes, rng)`` (params / norm with a leading seed axis) and the
-    interpolation codes: interpolation over the code grid, replay over ``episodes`` (``heldout_arrays`` without
-    ``strategy``; e.g. ``stack_sets`` of test and validation), latent codes of the episodes."""
-    evaluate, codes = _eval_fn(cfg, env, nets)
-    return jax.jit(jax.vmap(evaluate, in_axes=(0, 0, None, None))), codes
-
-
-def make_checkpoints_eval_fn(cfg: TrainConfig, env, nets):
-    """Like ``make_eval_fns``' ``seeds_eval``, over a leading checkpoint axis as well (params / norm stacked
-    (checkpoints, seeds, ...)): several checkpoints in one device program. The outputs gain the same leading
-    axis; each checkpoint's are those of ``seeds_eval`` on it."""
-    evaluate, _ = _eval_fn(cfg, env, nets)
-    return jax.jit(jax.vmap(jax.vmap(evaluate, in_axes=(0, 0, None, None)), in_axes=(0, 0, None, None)))
-
-
-def _eval_fn(cfg: TrainConfig, env, nets):
-    actor = nets["actor"].apply
-    K = cfg.history
-    Tenv = env.max_episode_steps
+def make_eval_fn(cfg: TrainConfig, env, nets):
+    """Jitted ``evaluate(params, norm, episodes) -> outputs`` of the evaluation protocols at several checkpoints
+    and seeds in one device program: params / norm stacked (checkpoints, seeds, ...); ``episodes``:
+    ``heldout_arrays`` without ``strategy`` (e.g. ``stack_sets`` of test and validation). The interpolation
+    rollouts (the ``eval_codes`` grid, initial states from ``EVAL_SEED``, the same for every checkpoint and seed)
+    and the replays run in one batch (``_episodes_fn``). Outputs, each (checkpoints, seeds, ...):
+    ``interp_success`` / ``interp_strategy`` / ``interp_metrics`` (per code), ``replay_success`` /
+    ``replay_metrics`` (per episode) and ``latent`` (psi's mean code of each episode)."""
+    run = _episodes_fn(cfg, env, nets)
     psi_code, _ = make_robot_step(cfg, env, nets)
-    replay_one = _replay_one_fn(cfg, env, nets)
-    freeze = _freeze
-
-    def normalize(norm, x):
-        return (x - norm["mean"]) / norm["std"]
-
-    def interp_one(params, norm, z, rng):
-        z = z if cfg.use_code else jnp.zeros_like(z)
-        state = env.reset(rng)
-
-        def body(carry, _):
-            state, fin, metrics = carry
-            mean, _ = actor(params["actor"], normalize(norm, state.obs), z)
-            nxt = env.step(state, jnp.clip(mean, -1, 1))
-            metrics = freeze(fin, metrics, nxt.metrics)
-            return (freeze(fin, state, nxt), fin | (nxt.done > 0), metrics), None
-
-        (state, _, metrics), _ = jax.lax.scan(body, (state, jnp.array(False), state.metrics), None, length=Tenv)
-        return {"success": metrics["success"], "strategy": env.classify_strategy(metrics), "metrics": metrics}
+    K, codes = cfg.history, interpolation_codes(cfg.eval_codes)
+    n = codes.shape[0]
 
     def latent_one(params, norm, obs, prev_ah, length):
         T = obs.shape[0]
@@ -159,20 +165,24 @@ def _eval_fn(cfg: TrainConfig, env, nets):
         mask = (jnp.arange(T) < length)[:, None]
         return (z * mask).sum(0) / jnp.maximum(length, 1)
 
-    codes = interpolation_codes(cfg.eval_codes)
+    latent = jax.vmap(jax.vmap(latent_one, in_axes=(None, None, 0, 0, 0)), in_axes=(0, 0, None, None, None))
 
-    def evaluate(params, norm, heldout, rng):
-        """For one seed: interpolation over the code grid, replay over held-out demos, latent codes."""
-        keys = jax.random.split(rng, codes.shape[0])
-        it = jax.vmap(interp_one, in_axes=(None, None, 0, 0))(params, norm, codes, keys)
-        rp = jax.vmap(replay_one, in_axes=(None, None, 0, 0, 0))(
-            params, norm, heldout["init"], heldout["ah"], heldout["length"])
-        lat = jax.vmap(latent_one, in_axes=(None, None, 0, 0, 0))(
-            params, norm, heldout["obs"], heldout["prev_ah"], heldout["length"])
-        return {"interp_success": it["success"], "interp_strategy": it["strategy"], "interp_metrics": it["metrics"],
-                "replay_success": rp["success"], "replay_metrics": rp, "latent": lat}
+    def evaluate(params, norm, held):
+        C, S = jax.tree.leaves(params)[0].shape[:2]
+        params, norm = jax.tree.map(_flat, (params, norm))
+        rp = replay_episodes(held, cfg.code_dim)
+        T = rp["ah"].shape[1]
+        interp = {"init": jax.vmap(env.sample_init)(jax.random.split(jax.random.PRNGKey(EVAL_SEED), n)), "replay": jnp.zeros((n,), bool),
+                  "code": codes, "ah": jnp.zeros((n, T, env.human_action_size)), "length": jnp.zeros((n,), jnp.int32)}
+        eps = jax.tree.map(lambda a, b: jnp.concatenate([a, b.astype(a.dtype)]), interp, rp)
+        m = run(params, norm, eps)
+        im, rm = jax.tree.map(lambda x: x[:, :n], m), jax.tree.map(lambda x: x[:, n:], m)
+        out = {"interp_success": im["success"], "interp_strategy": jax.vmap(jax.vmap(env.classify_strategy))(im),
+               "interp_metrics": im, "replay_success": rm["success"], "replay_metrics": rm,
+               "latent": latent(params, norm, held["obs"], held["prev_ah"], held["length"])}
+        return jax.tree.map(lambda x: x.reshape((C, S) + x.shape[1:]), out)
 
-    return evaluate, codes
+    return jax.jit(evaluate)
 
 
 def heldout_arrays(demos) -> dict[str, np.ndarray]:

@@ -322,8 +322,12 @@ def _checkpoints_to_evaluate(mgr, every: int) -> list[int]:
     return steps
 
 
+EXTRA = "extra:"  # the slices of the extra test sets in the evaluation batch (``stack_sets``' parts)
+
+
 def _split_sets(out: dict, part: dict) -> dict:
-    """One checkpoint's evaluation of the stacked test + validation batch, split into test and validation."""
+    """One checkpoint's evaluation of the stacked batch (test, validation and the extra sets), split into its
+    sets: ``extra`` holds each extra set's replay success."""
     t, v = part["test"], part["validation"]
     r = {k: ({m: np.asarray(x) for m, x in out[k].items()} if isinstance(out[k], dict) else np.asarray(out[k]))
          for k in ("interp_success", "interp_strategy", "interp_metrics")}
@@ -331,6 +335,8 @@ def _split_sets(out: dict, part: dict) -> dict:
     r["val_replay_success"] = np.asarray(out["replay_success"])[:, v]
     r["replay_metrics"] = {m: np.asarray(x)[:, t] for m, x in out["replay_metrics"].items()}
     r["latent"] = np.asarray(out["latent"])[:, t]
+    r["extra"] = {k[len(EXTRA):]: np.asarray(out["replay_success"])[:, sl] for k, sl in part.items()
+                  if k.startswith(EXTRA)}
     return r
 
 
@@ -348,12 +354,12 @@ def _checkpoint_params(mgr, abstract, memory: dict | None, step: int) -> dict:
     return eval_params(ckpt.restore(mgr, step, abstract))
 
 
-def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict, memory: dict | None = None) -> dict:
+def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict) -> dict:
     """Replay each extra set at the selected and the paper-protocol replay checkpoints: all sets stacked into one
     batch (one compiled replay program, one call per checkpoint); returns {name: evaluate.summarize_extra_set(...)}."""
     replay = evaluate.make_replay_fn(s.cfg, s.env, s.nets)
     cks = _extra_set_checkpoints(res)
-    states = {st: _checkpoint_params(mgr, abstract, memory, st) for st in sorted(set(cks.values()))}
+    states = {st: _checkpoint_params(mgr, abstract, None, st) for st in sorted(set(cks.values()))}
     eps = {name: evaluate.heldout_arrays(data.load_demos(path, s.env, require_init=True))
            for name, path in extra_sets.items()}
     if not eps:
@@ -366,6 +372,16 @@ def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict, mem
                                                eps[name]["strategy"], s.cfg.seeds, s.env.strategy_names, cks,
                                                file=path)
             for name, path in extra_sets.items()}
+
+
+def _extra_sets_results(s: Setup, per_ckpt: dict, res: dict, eps: dict, files: dict) -> dict:
+    """{name: evaluate.summarize_extra_set(...)} of the extra sets replayed (with every checkpoint) in the
+    evaluation batch, at the selected and the paper-protocol replay checkpoints."""
+    cks = _extra_set_checkpoints(res)
+    return {name: evaluate.summarize_extra_set({key: per_ckpt[st]["extra"][name] for key, st in cks.items()},
+                                               eps[name]["strategy"], s.cfg.seeds, s.env.strategy_names, cks,
+                                               file=files[name])
+            for name in files}
 
 
 def _save_extra_sets(run_dir: Path, res: dict, names) -> None:
@@ -429,12 +445,15 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     """Evaluate every checkpoint of a run; write results.json / results.md and figures into the run dir.
 
     Every checkpoint and seed is evaluated on the test split (replay, interpolation, latent codes) and on the
-    validation split (replay), test and validation stacked into one batch of one compiled program;
-    ``evaluate.summarize`` turns that into the reported figures (paper protocol, selected on validation, last).
+    validation split (replay); ``evaluate.summarize`` turns that into the reported figures (paper protocol,
+    selected on validation, last).
 
     ``extra_sets``: {name: demonstration file}: further test sets (recorded trials, imported files, varied human
-    trajectories, one file per variation), each replayed at the selected checkpoint and at the paper-protocol
-    replay checkpoint; results in results.json's ``extra_sets[name]`` and in RUN/replay-<name>/results.{json,md}.
+    trajectories, one file per variation), reported at the selected checkpoint and at the paper-protocol replay
+    checkpoint; results in results.json's ``extra_sets[name]`` and in RUN/replay-<name>/results.{json,md}.
+
+    The interpolation rollouts and the replays of the test, validation and extra sets run as one batch of one
+    compiled program (``evaluate.make_eval_fn``), at every checkpoint.
     ``replay_file``: one more extra set, named after the file's stem. To add sets to a run evaluated already,
     ``eval_extra_sets`` skips the evaluation of every checkpoint.
 
@@ -461,14 +480,17 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
         if not steps:
             raise RunError(f"{run_dir} has no checkpoints yet: train it first")
         abstract = jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert))
-        held, part = evaluate.stack_sets({"test": s.heldout, "validation": s.validation},
+        eps = {name: evaluate.heldout_arrays(data.load_demos(path, s.env, require_init=True))
+               for name, path in sets.items()}
+        held, part = evaluate.stack_sets({"test": s.heldout, "validation": s.validation,
+                                          **{EXTRA + name: e for name, e in eps.items()}},
                                          steps=s.env.max_episode_steps)
         per_ckpt, codes = _evaluate_checkpoints(s, mgr, abstract, steps, held, part, ckpt_batch, progress, memory)
         if not per_ckpt:
             raise ckpt.nothing_restored(mgr, run_dir)
         res, at, lat = _summarize(s, per_ckpt, codes, part)
         if sets:
-            res["extra_sets"] = _replay_extra_sets(s, mgr, abstract, res, sets, memory)
+            res["extra_sets"] = _extra_sets_results(s, per_ckpt, res, eps, sets)
     with clock("write"):
         _write_eval_outputs(run_dir, s, res, at, lat, sets, robustness)
     timing.write(run_dir, timing.merge_eval(timing.read(run_dir), clock, **timing.device_info()))
@@ -509,35 +531,27 @@ def _evaluate_checkpoints(s: Setup, mgr, abstract, steps: list[int], held: dict,
     the interpolation codes."""
     from tqdm import tqdm
 
-    cfg = s.cfg
-    seeds_eval, codes = evaluate.make_eval_fns(cfg, s.env, s.nets)
+    evaluate_fn = evaluate.make_eval_fn(s.cfg, s.env, s.nets)
     per_ckpt = {}
     ckpt_batch = max(1, min(int(ckpt_batch or default_ckpt_batch(len(steps))), len(steps)))
-    many = evaluate.make_checkpoints_eval_fn(cfg, s.env, s.nets) if ckpt_batch > 1 else None
     bar = tqdm(total=len(steps), desc="eval", disable=not progress, file=sys.stdout)
+    stack = lambda *x: jax.numpy.stack(x)  # noqa: E731
     for i in range(0, len(steps), ckpt_batch):
         group = []
         for step in steps[i:i + ckpt_batch]:
             try:
-                state = _checkpoint_params(mgr, abstract, memory, step)
+                group.append((step, _checkpoint_params(mgr, abstract, memory, step)))
             except ckpt.CheckpointError as e:
                 print(f"warning: {e}; skipped", flush=True)
-                continue
-            group.append((step, state))
         bar.update(len(steps[i:i + ckpt_batch]))
-        if many is None:
-            for step, state in group:
-                out = jax.device_get(seeds_eval(state["params"], state["norm"], held, jax.random.PRNGKey(12345)))
-                per_ckpt[step] = _split_sets(out, part)
-        elif group:
+        if group:
             pad = [st for _, st in group] + [group[-1][1]] * (ckpt_batch - len(group))  # one compiled shape
-            stack = lambda *x: jax.numpy.stack(x)  # noqa: E731
-            out = jax.device_get(many(jax.tree.map(stack, *[st["params"] for st in pad]),
-                                      jax.tree.map(stack, *[st["norm"] for st in pad]), held, jax.random.PRNGKey(12345)))
+            out = jax.device_get(evaluate_fn(jax.tree.map(stack, *[st["params"] for st in pad]),
+                                             jax.tree.map(stack, *[st["norm"] for st in pad]), held))
             for j, (step, _) in enumerate(group):
                 per_ckpt[step] = _split_sets(jax.tree.map(lambda x: x[j], out), part)
     bar.close()
-    return per_ckpt, codes
+    return per_ckpt, evaluate.interpolation_codes(s.cfg.eval_codes)
 
 
 def _summarize(s: Setup, per_ckpt: dict, codes, part: dict):

@@ -226,3 +226,55 @@ def test_checkpoints_per_evaluation_program_default_by_backend(monkeypatch):
     monkeypatch.setattr(trainer.jax, "default_backend", lambda: "gpu")
     assert trainer.default_ckpt_batch(34) == 34
     assert trainer.default_ckpt_batch(1000) == trainer.MAX_CKPT_BATCH
+
+
+def test_eval_program_matches_a_step_by_step_reference(tiny_cfg, demo_files, fetchq):
+    """The one-batch evaluation program (interpolation and replay episodes side by side, the physics on one flat
+    axis) against each protocol written out one episode and one step at a time: the replay robot of
+    ``make_robot_step`` (what `cogail play` drives) and the co-policy acting for both agents with a code."""
+    import jax
+    import jax.numpy as jnp
+
+    from cogail_jax import data, train
+
+    cfg = tiny_cfg.replace(bc_steps=3000, eval_codes=4)
+    expert = train.expert_arrays(data.load_demos(cfg.demos, fetchq), cfg.history)
+    init, _, nets = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
+    state = init(cfg.seeds, expert)
+    held = evaluate.heldout_arrays(data.load_demos(demo_files[1], fetchq, require_init=True))
+    held = {k: v for k, v in held.items() if k != "strategy"}
+    E = held["length"].shape[0]
+    one = lambda t: jax.tree.map(lambda x: x[None], t)  # noqa: E731  (one checkpoint)
+    out = jax.device_get(evaluate.make_eval_fn(cfg, fetchq, nets)(one(state.params), one(state.norm), held))
+    assert out["replay_success"].shape == (1, 2, E) and out["interp_success"].shape == (1, 2, 4)
+
+    _, robot_step = evaluate.make_robot_step(cfg, fetchq, nets)
+    robot_step, env_step = jax.jit(robot_step), jax.jit(fetchq.step)
+    actor = jax.jit(nets["actor"].apply)
+    codes = evaluate.interpolation_codes(cfg.eval_codes)
+    keys = jax.random.split(jax.random.PRNGKey(evaluate.EVAL_SEED), cfg.eval_codes)
+    Ah, ref = fetchq.human_action_size, {"replay": [], "interp": []}
+    for i in range(len(cfg.seeds)):
+        params, norm = jax.tree.map(lambda x: x[i], (state.params, state.norm))
+        for e in range(E):  # replay: the recorded human, the robot from pi_R(s, psi(h))
+            s = fetchq.reset_from(jnp.asarray(held["init"][e]))
+            hist, prev = jnp.repeat(s.obs[None], cfg.history + 1, 0), jnp.zeros(Ah)
+            for t in range(fetchq.max_episode_steps):
+                a_h = jnp.asarray(held["ah"][e][t] if t < held["length"][e] else np.zeros(Ah, np.float32))
+                s, hist, _, _ = robot_step(params, norm, s, hist, prev, a_h)
+                prev = a_h
+                if s.done:
+                    break
+            ref["replay"].append(s.metrics)
+        for k in range(cfg.eval_codes):  # interpolation: the co-policy for both agents with code k
+            s = fetchq.reset(keys[k])
+            for t in range(fetchq.max_episode_steps):
+                mean, _ = actor(params["actor"], (s.obs - norm["mean"]) / norm["std"], codes[k])
+                s = env_step(s, jnp.clip(mean, -1, 1))
+                if s.done:
+                    break
+            ref["interp"].append(s.metrics)
+    for name, got in (("replay", out["replay_metrics"]), ("interp", out["interp_metrics"])):
+        for m, v in got.items():  # every final metric: success, events, positions
+            assert np.allclose(np.asarray(v).reshape(-1), [float(r[m]) for r in ref[name]], atol=1e-5), (name, m)
+    assert out["replay_success"].sum() + out["interp_success"].sum() > 0  # some episode succeeds: a real check

@@ -214,6 +214,29 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     assert mem["selected"] == sel and mem["paper_protocol"] == pp and mem["last"] == res["last"]
     np.testing.assert_allclose(mem["latent_map"]["codes"], res["latent_map"]["codes"], rtol=1e-5, atol=1e-6)
     assert mem["extra_sets"]["again"]["selected"] == again["extra_sets"]["again"]["selected"]
+    # a device that runs out of memory with 3 checkpoints per program: the evaluation goes on with fewer, the
+    # same results, and a warning says which --ckpt-batch fits
+    from cogail_jax import evaluate as ev
+
+    real = ev.make_eval_fn
+
+    def small_device(*a, **k):
+        fn = real(*a, **k)
+
+        def call(params, norm, held):
+            if jax.tree.leaves(params)[0].shape[0] > 1:
+                raise RuntimeError("RESOURCE_EXHAUSTED: Out of memory while trying to allocate 1.00GiB.")
+            return fn(params, norm, held)
+        return call
+
+    import jax
+
+    monkeypatch.setattr(ev, "make_eval_fn", small_device)
+    capsys.readouterr()
+    oom = trainer.eval_run(run, progress=False, ckpt_batch=3, memory=kept)
+    monkeypatch.undo()
+    assert "give --ckpt-batch 1 next time" in capsys.readouterr().out
+    assert oom["curves"] == mem["curves"] and oom["selected"] == sel
 
 
 def test_checkpoints_per_evaluation_program_default_by_backend(monkeypatch):

@@ -525,10 +525,15 @@ def default_ckpt_batch(checkpoints: int) -> int:
     return 1 if jax.default_backend() == "cpu" else max(1, min(int(checkpoints), MAX_CKPT_BATCH))
 
 
+def _out_of_memory(e: Exception) -> bool:
+    return "RESOURCE_EXHAUSTED" in str(e) or "out of memory" in str(e).lower()
+
+
 def _evaluate_checkpoints(s: Setup, mgr, abstract, steps: list[int], held: dict, part: dict, ckpt_batch: int,
                           progress: bool, memory: dict | None = None) -> tuple[dict, object]:
     """{step: _split_sets(...)} for every checkpoint that restores (``ckpt_batch`` of them per device call), and
-    the interpolation codes."""
+    the interpolation codes. A device call that runs out of memory is tried again with half as many checkpoints
+    per call (a warning names the ``--ckpt-batch`` to give next time)."""
     from tqdm import tqdm
 
     evaluate_fn = evaluate.make_eval_fn(s.cfg, s.env, s.nets)
@@ -536,20 +541,30 @@ def _evaluate_checkpoints(s: Setup, mgr, abstract, steps: list[int], held: dict,
     ckpt_batch = max(1, min(int(ckpt_batch or default_ckpt_batch(len(steps))), len(steps)))
     bar = tqdm(total=len(steps), desc="eval", disable=not progress, file=sys.stdout)
     stack = lambda *x: jax.numpy.stack(x)  # noqa: E731
-    for i in range(0, len(steps), ckpt_batch):
+    i = 0
+    while i < len(steps):
         group = []
         for step in steps[i:i + ckpt_batch]:
             try:
                 group.append((step, _checkpoint_params(mgr, abstract, memory, step)))
             except ckpt.CheckpointError as e:
                 print(f"warning: {e}; skipped", flush=True)
-        bar.update(len(steps[i:i + ckpt_batch]))
         if group:
             pad = [st for _, st in group] + [group[-1][1]] * (ckpt_batch - len(group))  # one compiled shape
-            out = jax.device_get(evaluate_fn(jax.tree.map(stack, *[st["params"] for st in pad]),
-                                             jax.tree.map(stack, *[st["norm"] for st in pad]), held))
+            try:
+                out = jax.device_get(evaluate_fn(jax.tree.map(stack, *[st["params"] for st in pad]),
+                                                 jax.tree.map(stack, *[st["norm"] for st in pad]), held))
+            except Exception as e:  # noqa: BLE001  (XLA's out-of-memory error has no public class)
+                if ckpt_batch == 1 or not _out_of_memory(e):
+                    raise
+                ckpt_batch = max(1, ckpt_batch // 2)
+                print(f"warning: the device ran out of memory evaluating {len(pad)} checkpoints at once; trying "
+                      f"{ckpt_batch} (give --ckpt-batch {ckpt_batch} next time)", flush=True)
+                continue
             for j, (step, _) in enumerate(group):
                 per_ckpt[step] = _split_sets(jax.tree.map(lambda x: x[j], out), part)
+        bar.update(len(steps[i:i + ckpt_batch]))
+        i += ckpt_batch
     bar.close()
     return per_ckpt, evaluate.interpolation_codes(s.cfg.eval_codes)
 

@@ -103,8 +103,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with extra sets: evaluate every checkpoint again even if RUN/results.json is up to date "
                         "(by default only the extra sets are replayed then)")
     e.add_argument("--ckpt-batch", type=_positive, default=None, metavar="N",
-                   help="evaluate N checkpoints in one device program (vmapped; same results, more memory; "
-                        "default: every checkpoint on a GPU, halved while the device runs out of memory; 1 on the CPU)")
+                   help="evaluate N checkpoints in one device program (vmapped; more memory; on a GPU the batch "
+                        "can move figures at the rounding level; default: every checkpoint on a GPU, halved while "
+                        "the device runs out of memory; 1 on the CPU)")
     e.add_argument("--no-progress", action="store_true")
 
     pl = sub.add_parser("play", help="drive the human agent yourself in a local web page; the robot acts live",

@@ -162,6 +162,14 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     kept = {}
     trainer.train_run(cfg, run, progress=False, keep=kept)
     assert sorted(kept) == [2, 4, 6]  # every checkpoint the training wrote (update 0 is not evaluated)
+    from cogail_jax.report import read_scalars  # TensorBoard: every metric of every update, one file per seed
+
+    sc = read_scalars(run / "tb")
+    assert set(sc) == {"3", "5"} and set(sc["3"]) == set(sc["5"]) and "train/episode_success" in sc["3"]
+    spu = cfg.steps_per_update
+    for tag, (st, x) in sc["5"].items():
+        assert st.tolist() == [u * spu for u in range(1, 7)] and np.all(np.isfinite(x)), tag
+    assert np.all(sc["3"]["train/nonfinite"][1] == 0)
     res = trainer.eval_run(run, progress=False, extra_sets={"again": demo_files[1]})
     assert res["checkpoints"] == [2, 4, 6]
     assert res["splits"]["validation"] == {"file": str(val), "episodes": 6}

@@ -182,6 +182,7 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     assert e["selected"]["per_seed"] == sel["replay"]["per_seed"]
     assert e["paper_protocol"]["checkpoint"] == pp["replay"]["checkpoint"]
     assert e["paper_protocol"]["per_seed"] == pp["replay"]["per_seed"]
+    assert e["curve"] == res["curves"]["replay_success"]  # every checkpoint, every seed
     saved = json.loads((run / "results.json").read_text())
     assert list(saved)[:4] == ["task", "method", "seeds", "checkpoints"] and "extra_sets" in saved
     own = json.loads((run / "replay-again" / "results.json").read_text())

@@ -167,6 +167,11 @@ def test_figure(tmp_path):
     assert out.exists() and out.stat().st_size > 1000
     flat = rb.robustness_figure({"in_distribution": 0.6, "pauses": 0.2}, tmp_path / "flat.png")
     assert flat.exists()
+    assert rb.robustness_curve_figure(results, tmp_path / "none.png") is None  # no per-checkpoint curves
+    curves = {**results, "checkpoints": [10, 20], "curves": {"replay_success": [[0.5, 0.7], [0.6, 0.8]]},
+              "extra_sets": {"robust-slow": {"curve": [[0.1, 0.3], [0.2, 0.4]]}, "other": {"curve": [[0, 0]]}}}
+    out = rb.robustness_curve_figure(curves, tmp_path / "curves.png")
+    assert out.exists() and out.stat().st_size > 1000
 
 
 @pytest.mark.parametrize("task", ["handover", pytest.param("seqmanip", marks=pytest.mark.skipif(

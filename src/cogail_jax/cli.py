@@ -77,7 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--eval", action="store_true", help="evaluate every checkpoint when training ends")
     t.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
                    help="with --eval: also replay against varied humans (pace, pauses, path, noise, a change of "
-                        "mind; cached in the data folder); results in results.json's extra_sets, RUN/robustness.png")
+                        "mind; cached in the data folder); results in results.json's extra_sets, RUN/robustness.png "
+                        "and RUN/robustness_curves.png (per checkpoint)")
     t.add_argument("--devices", default=None,
                    help="shard the seed axis over N devices or 'all' (one program; seeds must split evenly)")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -96,7 +97,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "in results.json's extra_sets and in RUN/replay-<file name>/ (repeatable)")
     e.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
                    help="also replay against varied humans (pace, pauses, path, noise, a change of mind; cached in "
-                        "the data folder): results.json's extra_sets robust-<variation>, RUN/robustness.png")
+                        "the data folder): results.json's extra_sets robust-<variation>, RUN/robustness.png, "
+                        "RUN/robustness_curves.png (per checkpoint)")
     e.add_argument("--extra-set", action="append", default=[], metavar="NAME=FILE.hdf5",
                    help="like --replay-file, under the name NAME (repeatable)")
     e.add_argument("--reevaluate", action="store_true",

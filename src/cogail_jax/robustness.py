@@ -45,7 +45,7 @@ SPLIT_SEED = {"test": 100, "validation": 200}
 PREFIX = "robust-"
 
 __all__ = ["VARIATIONS", "ensure_robustness_sets", "generate_varied", "blind_robot_success", "robustness_figure",
-           "robust_path", "variation_seed", "validate_episodes"]
+           "robustness_curve_figure", "robust_path", "variation_seed", "validate_episodes"]
 
 
 class VariedEpisodes(NamedTuple):
@@ -432,6 +432,46 @@ def robustness_figure(results: dict, out_png, blind: dict | None = None, title: 
     ax.set_ylabel("replay success (%)")
     ax.set_ylim(0, 105)
     ax.set_title(title or "Robustness: replay against varied humans")
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    out_png = Path(out_png)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_png, dpi=110)
+    plt.close(fig)
+    return out_png
+
+
+def robustness_curve_figure(results: dict, out_png, title: str | None = None) -> Path | None:
+    """Lines: the seed-mean replay success of each varied-human set at every checkpoint (results.json's
+    ``extra_sets[robust-<variation>]["curve"]``) next to the in-distribution test replay, with the checkpoint
+    selected on validation marked. None (nothing written) when the results hold no such curves."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ckpts = results.get("checkpoints") or []
+    lines = {}
+    if (results.get("curves") or {}).get("replay_success"):
+        lines["in-distribution"] = results["curves"]["replay_success"]
+    for name, e in (results.get("extra_sets") or {}).items():
+        if name.startswith(PREFIX) and isinstance(e, dict) and e.get("curve"):
+            lines[name[len(PREFIX):]] = e["curve"]
+    lines = {k: np.asarray(v, float).mean(0) for k, v in lines.items() if np.shape(v)[-1] == len(ckpts)}
+    if len(lines) < 2 or not ckpts:
+        return None
+    fig, ax = plt.subplots(figsize=(7.0, 4.0))
+    for name, y in lines.items():
+        ax.plot(ckpts, 100 * y, lw=2.2 if name == "in-distribution" else 1.2, marker="o", ms=2.5,
+                color="k" if name == "in-distribution" else None, label=name)
+    sel = (results.get("selected") or {}).get("checkpoint")
+    if sel is not None:
+        ax.axvline(sel, color="tab:green", ls="--", lw=1.0, label="selected on validation")
+    ax.set_xlabel("update")
+    ax.set_ylabel("replay success (%), mean over seeds")
+    ax.set_ylim(-3, 103)
+    ax.grid(alpha=0.3)
+    ax.set_title(title or "Robustness per checkpoint")
     ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
     out_png = Path(out_png)

@@ -382,12 +382,17 @@ def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict) -> 
 
 def _extra_sets_results(s: Setup, per_ckpt: dict, res: dict, eps: dict, files: dict) -> dict:
     """{name: evaluate.summarize_extra_set(...)} of the extra sets replayed (with every checkpoint) in the
-    evaluation batch, at the selected and the paper-protocol replay checkpoints."""
-    cks = _extra_set_checkpoints(res)
-    return {name: evaluate.summarize_extra_set({key: per_ckpt[st]["extra"][name] for key, st in cks.items()},
-                                               eps[name]["strategy"], s.cfg.seeds, s.env.strategy_names, cks,
-                                               file=files[name])
-            for name in files}
+    evaluation batch, at the selected and the paper-protocol replay checkpoints, plus ``curve``: the replay
+    success of every seed at every checkpoint."""
+    cks, steps = _extra_set_checkpoints(res), sorted(per_ckpt)
+    out = {}
+    for name in files:
+        out[name] = evaluate.summarize_extra_set({key: per_ckpt[st]["extra"][name] for key, st in cks.items()},
+                                                 eps[name]["strategy"], s.cfg.seeds, s.env.strategy_names, cks,
+                                                 file=files[name])
+        # (seeds, checkpoints), like results.json's curves: the set's replay success at every checkpoint
+        out[name]["curve"] = np.stack([per_ckpt[st]["extra"][name].mean(1) for st in steps], 1).tolist()
+    return out
 
 
 def _save_extra_sets(run_dir: Path, res: dict, names) -> None:
@@ -603,6 +608,8 @@ def _write_eval_outputs(out_dir: Path, s: Setup, res: dict, at: dict, lat, sets:
         from . import robustness as rb
 
         rb.robustness_figure(res, out_dir / "robustness.png", title=f"{cfg.method} on {cfg.task}: varied humans")
+        rb.robustness_curve_figure(res, out_dir / "robustness_curves.png",
+                                   title=f"{cfg.method} on {cfg.task}: varied humans per checkpoint")
     if "handover_x" in at["interp_metrics"]:  # HR-Handover: where the handovers happened (paper Fig. 4a)
         im = {k: at["interp_metrics"][k] for k in ("handover_x", "handover_y", "handover_z")}
         evaluate.write_handover_spots(out_dir, res, im, at["interp_success"], s.train_metrics)

@@ -305,8 +305,9 @@ def _dispatch(a) -> int:
         from .trainer import eval_run, train_run
 
         cfg = _config_from_args(a)
-        kept = {}  # each checkpoint's evaluation parameters, kept in memory: the evaluation reads none back
-        run = train_run(cfg, a.run, resume=a.resume, progress=not a.no_progress, devices=a.devices, keep=kept)
+        kept = {}  # with --eval, each checkpoint's evaluation parameters kept in memory: none is read back
+        run = train_run(cfg, a.run, resume=a.resume, progress=not a.no_progress, devices=a.devices,
+                        keep=kept if a.eval else None)
         print(f"trained: {run}")
         if a.eval:
             res = eval_run(run, progress=not a.no_progress, robustness=a.robustness, memory=kept)

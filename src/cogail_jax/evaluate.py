@@ -139,8 +139,9 @@ def replay_episodes(episodes: dict, code_dim: int) -> dict:
 
 def make_replay_fn(cfg: TrainConfig, env, nets):
     """Jitted ``replay(params, norm, episodes) -> final metrics (seeds, episodes)``: the replay protocol alone
-    (params / norm with a leading seed axis; ``episodes``: ``heldout_arrays`` without ``strategy``). Used for the
-    extra test sets (``eval_run(extra_sets=...)``)."""
+    (params / norm with a leading seed axis; ``episodes``: ``heldout_arrays`` without ``strategy``). Used for extra
+    test sets added to a run evaluated already (``trainer.eval_extra_sets``); ``eval_run`` replays its extra sets
+    in the batch of ``make_eval_fn``."""
     run = _episodes_fn(cfg, env, nets)
     return jax.jit(lambda params, norm, ep: run(params, norm, replay_episodes(ep, cfg.code_dim)))
 

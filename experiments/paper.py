@@ -67,6 +67,16 @@ def run_dir(out: Path, cfg) -> Path:
     return out / "runs" / f"{cfg.task}-{cfg.method}-{cfg.mix}-{config_hash(cfg)}"
 
 
+def validation_robustness_sets(task, mix) -> dict:
+    """The varied humans drawn from the validation split (``val-robust-<variation>``), replayed at every checkpoint
+    beside the test ones, so that robustness-oriented choices (a variant, its settings) are made on validation."""
+    import cogail_envs
+    from cogail_jax import robustness
+
+    sets = robustness.ensure_robustness_sets(cogail_envs.make_env(task), mix=mix, split="validation")
+    return {"val-" + name: str(path) for name, path in sets.items()}
+
+
 def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1,
             ckpt_batch: int | None = None) -> dict:
     from cogail_jax import trainer
@@ -80,7 +90,8 @@ def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1,
         raise SystemExit(f"{run} holds a run of another config: remove it")
     kept = {}
     trainer.train_run(cfg, run, resume=resume, progress=False, keep=kept)
-    res = trainer.eval_run(run, progress=False, every=every, robustness=True, ckpt_batch=ckpt_batch, memory=kept)
+    res = trainer.eval_run(run, progress=False, every=every, robustness=True, ckpt_batch=ckpt_batch, memory=kept,
+                           extra_sets=validation_robustness_sets(task, mix))
     return {**{k: res[k] for k in KEEP if k in res}, "config_hash": config_hash(cfg), "run": str(run),
             "eval_every": every}
 

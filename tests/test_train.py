@@ -356,28 +356,3 @@ def test_rollout_records_time_outs_with_the_value_of_the_final_observation(tiny_
     np.testing.assert_allclose(np.asarray(tr2["final_value"][0]), np.asarray(want), rtol=1e-5, atol=1e-6)
     # the next step's value is that of the fresh episode, not of the final observation
     assert float(np.abs(np.asarray(tr2["value"][1]) - np.asarray(want)).max()) > 1e-4
-
-
-@pytest.mark.parametrize("switch", [0.0, 0.3])
-def test_code_switch_redraws_running_episodes_codes(tiny_cfg, fetchq, switch):
-    """Without switches an episode keeps its code from start to end; with ``code_switch`` the co-policy's human
-    gets a new code mid-episode at about that rate per step (the rollout's z is what the policy acted on)."""
-    from cogail_jax import networks, rollout
-
-    cfg = tiny_cfg.replace(code_switch=switch, num_envs=8, unroll_length=40)
-    nets = networks.make_networks(cfg, fetchq)
-    obs, z0 = np.zeros((1, fetchq.observation_size), np.float32), np.zeros((1, 2), np.float32)
-    key = jax.random.PRNGKey(0)
-    params = {"actor": nets["actor"].init(key, obs, z0), "critic": nets["critic"].init(key, obs, z0)}
-    norm = {"mean": np.zeros(fetchq.observation_size, np.float32), "std": np.ones(fetchq.observation_size, np.float32)}
-    carry = rollout.initial_carry(cfg, fetchq, jax.random.PRNGKey(1), jax.random.PRNGKey(2))
-    _, traj, _ = rollout.rollout(cfg, fetchq, nets["actor"].apply, nets["critic"].apply, params, norm, carry,
-                                 jax.random.PRNGKey(3))
-    z, first = np.asarray(traj["z"]), np.asarray(traj["first"])
-    same_episode = ~first[1:]  # step t + 1 continues step t's episode
-    changed = np.any(z[1:] != z[:-1], axis=-1)[same_episode]
-    assert np.all(np.abs(z) <= 1.0)
-    if switch == 0:
-        assert not changed.any()
-    else:
-        assert 0.15 < changed.mean() < 0.45, changed.mean()

@@ -126,29 +126,40 @@ def save(mgr: ocp.CheckpointManager, step: int, state) -> None:
 
 
 class BackgroundSaver:
-    """Checkpoints written while training goes on. ``submit(step, state)`` copies the state on its devices (the
-    training call donates its input, so the copy is what gets written), returns the copy and writes it with
-    ``save`` in a worker thread; one save at a time (a new one waits for the previous). ``wait()`` returns once
-    the last submitted checkpoint is on disk and re-raises its error; ``close()`` waits, then stops the thread.
-    Each checkpoint is still atomic (``save``): a run killed mid-write resumes from the previous one."""
+    """Checkpoints written while training goes on, in a worker thread, one at a time in submission order.
+
+    ``copy(state)`` copies the state on its devices (asynchronously: the training call that follows donates its
+    input, so the copy is what gets written); ``submit(step, copy)`` queues it for ``save`` (returning at once unless ``MAX_PENDING`` are queued);
+    ``wait()`` returns once every submitted checkpoint is on disk and re-raises the first error; ``close()`` waits,
+    then stops the thread. Each checkpoint is still atomic (``save``): a run killed mid-write resumes from the
+    previous one."""
 
     def __init__(self, mgr: ocp.CheckpointManager):
         from concurrent.futures import ThreadPoolExecutor
 
         self.mgr = mgr
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="checkpoint")
-        self._pending = None
+        self._pending = []
 
-    def submit(self, step: int, state):
-        self.wait()
-        copy = jax.tree.map(jnp.copy, state)
-        self._pending = self._pool.submit(save, self.mgr, step, copy)
-        return copy
+    @staticmethod
+    def copy(state):
+        return jax.tree.map(jnp.copy, state)
+
+    MAX_PENDING = 2  # copies queued at most (a slower disk makes training wait rather than fill device memory)
+
+    def submit(self, step: int, copy) -> None:
+        while len(self._pending) >= self.MAX_PENDING:
+            self._pending.pop(0).result()
+        done = [f for f in self._pending if f.done()]
+        self._pending = [f for f in self._pending if not f.done()]
+        for f in done:  # an earlier save's error surfaces at the next checkpoint
+            f.result()
+        self._pending.append(self._pool.submit(save, self.mgr, step, copy))
 
     def wait(self) -> None:
-        pending, self._pending = self._pending, None
-        if pending is not None:
-            pending.result()
+        pending, self._pending = self._pending, []
+        for f in pending:
+            f.result()
 
     def close(self) -> None:
         try:

@@ -72,9 +72,6 @@ class TrainConfig:
     code_dim: int = 2
     code_grid: int = 5
     code_noise: float = 0.2
-    # our addition (0 = the paper): each step, the probability that a running episode's code is redrawn, so that
-    # the co-policy's human changes its mind mid-episode and the robot learns to follow it (README, "Robustness")
-    code_switch: float = 0.0
     history: int = 4  # K: psi reads s_{t-K..t} and a^H_{t-1}
     lambda_z: float = 0.05  # the paper gives no value; 1.0 erodes interpolation (README)
     lambda_a: float = 1.0
@@ -161,8 +158,6 @@ class TrainConfig:
             raise ConfigError(f"num_demos must be >= 0 (0: the task's default), got {self.num_demos}")
         if self.policy_cooldown < 0:
             raise ConfigError(f"policy_cooldown must be >= 0, got {self.policy_cooldown}")
-        if not 0.0 <= self.code_switch <= 1.0:
-            raise ConfigError(f"code_switch is a per-step probability in [0, 1], got {self.code_switch}")
         if self.bc_coef < 0:
             raise ConfigError(f"bc_coef must be >= 0, got {self.bc_coef}")
         if self.history < 0 or self.bc_steps < 0:

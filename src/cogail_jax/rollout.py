@@ -1,9 +1,7 @@
 """The rollout: ``num_envs`` environments stepped together for ``unroll_length`` steps in one ``lax.scan``.
 
 Each episode has its own strategy code z, taken when it starts: the next cell of an n x n grid over
-(-1, 1)^2 visited in cycle order, plus U[-noise, noise]. With ``cfg.code_switch`` > 0 a running episode's code is also redrawn (uniform over
-(-1, 1)^2) with that probability at every step: the co-policy's human changes its mind mid-episode, so the robot
-trains on states where the person left the plan it started with. An env whose episode ends (success, failure or time
+(-1, 1)^2 visited in cycle order, plus U[-noise, noise]. An env whose episode ends (success, failure or time
 limit) restarts inside the scan with a fresh state and a new code. A time-out is recorded as a truncation
 together with the episode's final observation, so that GAE can bootstrap it with the critic.
 """
@@ -71,12 +69,6 @@ def rollout(cfg: TrainConfig, env, actor, critic, params, norm, carry: Carry, ke
 
     def body(c: Carry, key):
         k_act, k_code = jax.random.split(key)
-        z_cur = c.z
-        if cfg.code_switch > 0 and cfg.use_code:  # a Python branch: without switches the key stream is unchanged
-            k_code, k_sw, k_new = jax.random.split(k_code, 3)
-            switch = jax.random.bernoulli(k_sw, cfg.code_switch, (n, 1))
-            z_cur = jnp.where(switch, jax.random.uniform(k_new, c.z.shape, minval=-1.0, maxval=1.0), c.z)
-        c = c._replace(z=z_cur)
         obs_n = normalize(norm, c.env_state.obs)
         mean, log_std = actor(params["actor"], obs_n, c.z)
         value = critic(params["critic"], obs_n, c.z)

@@ -236,10 +236,11 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
                 keep: dict | None = None):
     """Call the jitted chunk until the budget (or ``stop_after``), logging and checkpointing; returns LoopStats.
 
-    The host never holds the device up: each call is dispatched before the previous call's metrics are logged,
-    and checkpoints are written in a background thread (``checkpoint.BackgroundSaver``). A checkpoint is saved
-    only after its metrics show finite parameters. ``keep``: filled with {update: eval_params(...)} of every
-    checkpoint written, so that ``eval_run`` need not read them back from disk."""
+    The host never holds the device up: each call is dispatched before the previous call's metrics are logged; a
+    checkpoint's state is copied on the device right after its call and written by a background thread
+    (``checkpoint.BackgroundSaver``) once that call's metrics show finite parameters, while the next call runs.
+    ``keep``: filled with {update: eval_params(...)} of every checkpoint written, so that ``eval_run`` need not
+    read them back from disk."""
     from tensorboardX import FileWriter
     from tqdm import tqdm
 
@@ -248,13 +249,17 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
     bar = tqdm(total=total, initial=start, unit="upd", disable=not progress, dynamic_ncols=True, file=sys.stdout)
     saver = ckpt.BackgroundSaver(mgr)
     stats, t_loop = LoopStats(start, []), time.perf_counter()
-    pending = None  # (first update, device metrics) of the call not logged yet
+    pending = None  # (first update, device metrics, (update, state copy) or None) of the call not logged yet
 
     def drain():
         nonlocal pending
         if pending is not None:
-            (u0, m), pending = pending, None
+            (u0, m, to_save), pending = pending, None
             bar.set_postfix(_postfix(_check_and_log(writers, m, u0, cfg, saver), stats))
+            if to_save is not None:
+                saver.submit(*to_save)
+                if keep is not None:
+                    keep[to_save[0]] = eval_params(to_save[1])
 
     try:
         t_last = time.perf_counter()
@@ -262,14 +267,11 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
             state, metrics = s.chunk(state, s.expert)
             if not stats.call_seconds:  # the first call compiles: timed on its own
                 jax.block_until_ready(metrics)
+            u0, stats.update = stats.update, stats.update + upc
+            at_ckpt = stats.update % cfg.checkpoint_every == 0 or stats.update >= total
+            copy = (stats.update, saver.copy(state)) if at_ckpt else None
             drain()
-            pending = (stats.update, metrics)
-            stats.update += upc
-            if stats.update % cfg.checkpoint_every == 0 or stats.update >= total:
-                drain()
-                copy = saver.submit(stats.update, state)
-                if keep is not None:
-                    keep[stats.update] = eval_params(copy)
+            pending = (u0, metrics, copy)
             now = time.perf_counter()
             stats.call_seconds.append(now - t_last)
             t_last = now

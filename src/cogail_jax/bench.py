@@ -174,6 +174,9 @@ def add_arguments(p) -> None:
     p.add_argument("--peer-only", action="store_true", help="skip the Co-GAIL train_step rows (env-only and brax)")
     p.add_argument("--unroll", type=int, default=94, help="rollout length per update")
     p.add_argument("--calls", type=int, default=3, help="timed train_step calls per row")
+    p.add_argument("--matmul-precision", default=None, choices=("highest", "tensorfloat32", "bfloat16"),
+                   help="compile the train_step rows under jax.default_matmul_precision(P) (default: JAX's, TF32 on "
+                        "recent NVIDIA GPUs), to see how much of the update is matmul work")
     p.add_argument("--phases", nargs="+", default=None, metavar="RUN",
                    help="benchmark nothing: print the seconds of each phase (demos, bc, compile, train, eval, "
                         "write, total) of these runs, read from RUN/speed.json, as a markdown table")
@@ -197,8 +200,9 @@ def run_from_args(a) -> None:
     if a.phases:
         print(phases_report(a.phases))
         return
-    main(a.task, tuple(int(x) for x in a.sizes.split(",")), a.out, a.env_only, a.steps, not a.no_peer, a.unroll,
-         a.calls, not a.peer_only)
+    with jax.default_matmul_precision(a.matmul_precision):
+        main(a.task, tuple(int(x) for x in a.sizes.split(",")), a.out, a.env_only, a.steps, not a.no_peer,
+             a.unroll, a.calls, not a.peer_only)
 
 
 def cli(argv=None):

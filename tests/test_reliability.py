@@ -234,3 +234,29 @@ def test_loader_rejects_garbage_bytes(blob, fetchq, tmp_path_factory):
     path.write_bytes(blob)
     with pytest.raises(data.DatasetError, match="junk.hdf5"):
         data.load_demos(path, fetchq)
+
+
+def test_background_saver_queues_in_order_and_reports_errors(tmp_path, monkeypatch):
+    """Checkpoints submitted while training goes on are written in submission order, at most MAX_PENDING copies
+    wait, and a failed write surfaces (at the next submit or at wait) instead of being lost."""
+    written, gate = [], __import__("threading").Event()
+
+    def slow_save(mgr, step, state):
+        gate.wait(5)
+        if step == 3:
+            raise OSError("disk full")
+        written.append((step, float(state["x"][0])))
+
+    monkeypatch.setattr(ckpt, "save", slow_save)
+    saver = ckpt.BackgroundSaver(None)
+    state = {"x": jax.numpy.ones(2)}
+    saver.submit(1, saver.copy(state))
+    saver.submit(2, saver.copy({"x": state["x"] * 2}))
+    assert len(saver._pending) == 2 and not written  # queued, nothing written yet, the caller not blocked
+    gate.set()
+    saver.wait()
+    assert written == [(1, 1.0), (2, 2.0)]
+    saver.submit(3, saver.copy(state))
+    with pytest.raises(OSError, match="disk full"):
+        saver.wait()
+    saver.close()

@@ -255,6 +255,9 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
         nonlocal pending
         if pending is not None:
             (u0, m, to_save), pending = pending, None
+            if u0 != start and stats.call_seconds:  # a finished call after the first (compiling) one
+                stats.steady_steps += upc * cfg.steps_per_update * len(cfg.seeds)
+                stats.steady_seconds = time.perf_counter() - t_loop - stats.call_seconds[0]
             bar.set_postfix(_postfix(_check_and_log(writers, m, u0, cfg, saver), stats))
             if to_save is not None:
                 saver.submit(*to_save)
@@ -275,8 +278,6 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
             now = time.perf_counter()
             stats.call_seconds.append(now - t_last)
             t_last = now
-            if len(stats.call_seconds) > 1:
-                stats.steady_steps += upc * cfg.steps_per_update * len(cfg.seeds)
             stats.loop_seconds = now - t_loop
             stats.steady_seconds = stats.loop_seconds - stats.call_seconds[0]
             bar.update(upc)

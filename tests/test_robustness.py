@@ -188,3 +188,32 @@ def test_mjx_sets_validate(task, tmp_path):
     assert np.all(d.strategy == eps.executed)
     runs = [_longest_still(d.actions_human[i, : d.length[i], :6]) for i in range(d.num)]
     assert min(runs) >= 20
+
+
+def test_varied_training_set_adds_validated_varied_humans_to_the_team(fetchq, fq_sets, tmp_path):
+    """``train_varied``: the default training set, then per_variation validated varied-human episodes of each
+    variation, from generator seeds of their own (none is one of the test split's varied humans); cached."""
+    from cogail_jax.config import ConfigError, TrainConfig
+
+    k = 2
+    with _data_dir(tmp_path):
+        path = rb.ensure_varied_training_set(fetchq, per_variation=k, batch=BATCH, verbose=False)
+        team = load_demos(tmp_path / "fetchq_uniform_train.hdf5", fetchq, require_init=True)
+        stamp = path.stat().st_mtime_ns
+        assert rb.ensure_varied_training_set(fetchq, per_variation=k, batch=BATCH, verbose=False) == path
+        assert path.stat().st_mtime_ns == stamp  # cached, not made again
+    d = load_demos(path, fetchq, require_init=True)
+    n = team.num
+    assert d.num == n + k * len(rb.VARIATIONS)
+    with h5py.File(path, "r") as f:
+        assert int(f.attrs["team_demos"]) == n and int(f.attrs["varied_per_variation"]) == k
+    assert np.array_equal(d.length[:n], team.length) and np.allclose(d.obs[:n, : team.obs.shape[1]], team.obs)
+    added = slice(n, None)
+    rep = rb.validate_episodes(fetchq, d.init[added], d.actions_human[added], d.actions_robot[added], BATCH)
+    assert np.all(rep["success"] > 0)
+    test_inits = np.concatenate([load_demos(p, fetchq, require_init=True).init for p in fq_sets.values()])
+    assert not any(np.any(np.all(np.isclose(test_inits, x), axis=1)) for x in d.init[added])
+    with pytest.raises(ConfigError, match="train_varied"):
+        TrainConfig(train_varied=-1).validate()
+    with pytest.raises(ConfigError, match="--demos"):
+        TrainConfig(train_varied=2, demos="mine.hdf5").validate()

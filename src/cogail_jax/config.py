@@ -24,6 +24,9 @@ class TrainConfig:
     heldout: str | None = None  # test demonstrations for replay evaluation (default: the task's test split)
     validation: str | None = None  # validation demonstrations, for checkpoint selection (default: the task's own)
     num_demos: int = 0  # size of the generated default training set (0: the task's default, e.g. 120 for seqmanip)
+    # our addition (0 = the paper): that many varied-human episodes of each of the robustness protocol's six
+    # variations added to the default training set (robustness.ensure_varied_training_set; README, "Robustness")
+    train_varied: int = 0
     mix: str = "uniform"  # strategy mixture of the default datasets (uniform, D1, D2)
     # the task's time limit in env steps, for training and evaluation (0: the task's own: fetchq 300, handover 300,
     # seqmanip 600). Generated demonstrations are made under the task's own limit either way.
@@ -156,6 +159,11 @@ class TrainConfig:
             raise ConfigError(f"max_episode_steps must be >= 0 (0: the task's own time limit), got {self.max_episode_steps}")
         if self.num_demos < 0:
             raise ConfigError(f"num_demos must be >= 0 (0: the task's default), got {self.num_demos}")
+        if self.train_varied < 0:
+            raise ConfigError(f"train_varied must be >= 0 (varied-human episodes per variation), got {self.train_varied}")
+        if self.train_varied and self.demos:
+            raise ConfigError("train_varied adds varied humans to the default training set, not to a file of your own "
+                              "(--demos): leave one of them out")
         if self.policy_cooldown < 0:
             raise ConfigError(f"policy_cooldown must be >= 0, got {self.policy_cooldown}")
         if self.bc_coef < 0:

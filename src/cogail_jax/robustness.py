@@ -41,11 +41,11 @@ from cogail_envs.teams import VARIATIONS, variation_id
 from .data import DEFAULT_HELDOUT, _stored_version, data_dir, load_demos, save_demos
 
 ROBUST_VERSION = 2  # bump when the variations change (cached files are regenerated)
-SPLIT_SEED = {"test": 100, "validation": 200}
+SPLIT_SEED = {"test": 100, "validation": 200, "train": 300}  # + the variation's index
 PREFIX = "robust-"
 
 __all__ = ["VARIATIONS", "ensure_robustness_sets", "generate_varied", "blind_robot_success", "robustness_figure",
-           "robustness_curve_figure", "robust_path", "variation_seed", "validate_episodes"]
+           "robustness_curve_figure", "robust_path", "variation_seed", "validate_episodes", "ensure_varied_training_set"]
 
 
 class VariedEpisodes(NamedTuple):
@@ -278,6 +278,58 @@ def ensure_robustness_sets(env, mix="uniform", split: str = "test", num: int = 6
             write_robust_file(path, env, eps, v, str(mix), seed, split, num, stats)
         out[PREFIX + v] = path
     return out
+
+
+def varied_training_path(team_path: Path, per_variation: int) -> Path:
+    return Path(team_path).with_name(f"{Path(team_path).stem}_varied{per_variation}.hdf5")
+
+
+def ensure_varied_training_set(env, mix="uniform", num: int = 0, per_variation: int = 10, verbose: bool = True,
+                               batch: int | None = None) -> Path:
+    """The default training set (``data.ensure_default_demos``) plus ``per_variation`` varied-human episodes of each
+    of the protocol's variations, made like the test's varied humans (successful, validated by re-simulation) from
+    the training split's generator seeds (300 + the variation's index, disjoint from the test's and validation's):
+    ``data/<task>_<mix>_train[_N]_varied<k>.hdf5``, made on first use and cached."""
+    import h5py
+
+    from .data import ensure_default_demos
+
+    team_path = ensure_default_demos(env, "train", mix, verbose=verbose, num=num)
+    path = varied_training_path(team_path, per_variation)
+    if path.exists() and _stored_version(path) == env.version:
+        with h5py.File(path, "r") as f:
+            if int(f.attrs.get("robust_version", -1)) == ROBUST_VERSION:
+                return path
+    team = load_demos(team_path, env, require_init=True)
+    parts = [team]
+    for v in VARIATIONS:
+        eps, _ = generate_varied(env, v, per_variation, mix=mix, split="train", batch=batch)
+        parts.append(eps)
+    if verbose:
+        print(f"adding {per_variation} varied-human episodes per variation to {team_path} -> {path}", flush=True)
+    T = max(p.obs.shape[1] for p in parts)
+
+    def cat(name):
+        xs = [np.asarray(getattr(p, name)) for p in parts]
+        if xs[0].ndim == 3:
+            xs = [np.pad(x, ((0, 0), (0, T - x.shape[1]), (0, 0))) for x in xs]
+        return np.concatenate(xs)
+
+    fields = ("obs", "actions_human", "actions_robot", "length", "strategy", "init")
+    team_m = team.metrics or {}
+    keys = [k for k in team_m if all(k in (p.final_metrics or {}) for p in parts[1:])]
+    metrics = {k: np.concatenate([np.asarray(team_m[k])] + [np.asarray(p.final_metrics[k]) for p in parts[1:]])
+               for k in keys}
+    from types import SimpleNamespace
+
+    eps = SimpleNamespace(**{f: cat(f) for f in fields}, final_metrics=metrics)
+    tmp = save_demos(path.with_name(f"{path.name}.{os.getpid()}.varied.hdf5"), env, eps, mixture=str(mix),
+                     seed=variation_seed(VARIATIONS[0], "train"))
+    with h5py.File(tmp, "a") as f:
+        f.attrs.update(robust_version=ROBUST_VERSION, varied_per_variation=int(per_variation),
+                       team_demos=int(len(team.length)))
+    os.replace(tmp, path)
+    return path
 
 
 def read_attrs(path) -> tuple[dict, np.ndarray]:

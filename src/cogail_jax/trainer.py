@@ -57,7 +57,12 @@ def build(cfg: TrainConfig, need_heldout: bool = True, need_validation: bool | N
     env = task_env = cogail_envs.make_env(cfg.task)  # task_env: the task's own limit (the cached demos')
     if cfg.max_episode_steps and cfg.max_episode_steps != env.max_episode_steps:
         env = cogail_envs.make_env(cfg.task, max_episode_steps=cfg.max_episode_steps)
-    train_path = cfg.demos or data.ensure_default_demos(task_env, "train", cfg.mix, num=cfg.num_demos)
+    if cfg.train_varied:
+        from .robustness import ensure_varied_training_set
+
+        train_path = ensure_varied_training_set(task_env, cfg.mix, cfg.num_demos, cfg.train_varied)
+    else:
+        train_path = cfg.demos or data.ensure_default_demos(task_env, "train", cfg.mix, num=cfg.num_demos)
     demos = data.load_demos(train_path, env)
     expert = train.expert_arrays(demos, cfg.history)
     heldout, validation, files = None, None, {}

@@ -310,3 +310,14 @@ def test_eval_program_matches_a_step_by_step_reference(tiny_cfg, demo_files, fet
         for m, v in got.items():  # every final metric: success, events, positions
             assert np.allclose(np.asarray(v).reshape(-1), [float(r[m]) for r in ref[name]], atol=1e-5), (name, m)
     assert out["replay_success"].sum() + out["interp_success"].sum() > 0  # some episode succeeds: a real check
+
+
+def test_robustness_sets_of_a_run_trained_on_varied_humans_are_flagged():
+    """A run whose training set held varied humans (train_varied) says so next to its varied-human figures."""
+    res = evaluate.summarize("fetchq", "cogail", SEEDS, _per_ckpt(), ("a", "b", "c", "d"), None)
+    e = {"episodes": 4, "selected": {"checkpoint": 40, "mean": 0.5, "std": 0.0, "per_seed": {}},
+         "paper_protocol": None}
+    res["extra_sets"] = {"robust-detour": e}
+    assert "trained on" not in evaluate.results_markdown(res)
+    res["train_varied"] = 10
+    assert "10 varied-human episodes of each variation" in evaluate.results_markdown(res)

@@ -460,6 +460,9 @@ def results_markdown(res: dict) -> str:
                   "| --- | --- | --- | --- |"]
         for name, e in res["extra_sets"].items():
             lines += extra_set_markdown(name, e)
+        if res.get("train_varied"):
+            lines += ["", f"The training set held {res['train_varied']} varied-human episodes of each variation "
+                      "(train_varied): the robust-* sets are kinds of person the robot was trained on, not new ones."]
     return "\n".join(lines) + "\n"
 
 

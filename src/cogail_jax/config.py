@@ -162,8 +162,9 @@ class TrainConfig:
         if self.train_varied < 0:
             raise ConfigError(f"train_varied must be >= 0 (varied-human episodes per variation), got {self.train_varied}")
         if self.train_varied and self.demos:
-            raise ConfigError("train_varied adds varied humans to the default training set, not to a file of your own "
-                              "(--demos): leave one of them out")
+            raise ConfigError(f"train_varied={self.train_varied} (e.g. from experiments/fetchq_*.json) adds varied humans "
+                              "to the task's default training set, not to --demos: add --set train_varied=0 to train "
+                              "on your file alone")
         if self.policy_cooldown < 0:
             raise ConfigError(f"policy_cooldown must be >= 0, got {self.policy_cooldown}")
         if self.bc_coef < 0:

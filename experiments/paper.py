@@ -181,11 +181,21 @@ def fig3_png(results: dict, methods, path: Path) -> bool:
     return True
 
 
+SHIPPED = {"fetchq": "train-varied-20", "handover": "train-varied-20", "seqmanip": "shipped-1000-demos"}
+"""The variant label whose run has the settings ``make train TASK=...`` uses (experiments/<task>_paper.json), where
+they differ from the main table's (which trains every method on the team demonstrations alone)."""
+
+
 def curves_png(results: dict, path: Path, method: str = "cogail") -> bool:
-    """Learning curves of ``method`` per task (its variants beside it): replay and interpolation success on test
-    against updates, mean +- std over seeds, the checkpoint selected on validation dotted."""
-    keys = sorted(k for k in results if k.split("/")[1] == method and k.split("/")[2] == "uniform"
-                  and (results[k].get("curves") or {}).get("replay_success"))
+    """Learning curves of ``method`` per task, the main table's run and the shipped settings' run (``SHIPPED``):
+    replay and interpolation success on test against updates, mean +- std over seeds, the checkpoint selected on
+    validation dotted."""
+    def shown(k):
+        parts = k.split("/")
+        return (parts[1] == method and parts[2] == "uniform" and (len(parts) == 3 or parts[3] == SHIPPED.get(parts[0]))
+                and bool((results[k].get("curves") or {}).get("replay_success")))
+
+    keys = sorted(k for k in results if shown(k))
     tasks = [t for t in ("fetchq", "handover", "seqmanip") if any(k.startswith(t + "/") for k in keys)]
     if not tasks:
         return False
@@ -198,7 +208,7 @@ def curves_png(results: dict, path: Path, method: str = "cogail") -> bool:
     fig, axes = plt.subplots(2, len(tasks), figsize=(4.2 * len(tasks), 5.5), squeeze=False)
     for j, t in enumerate(tasks):
         for k in (k for k in keys if k.startswith(t + "/")):
-            r, label = results[k], "/".join(k.split("/")[3:]) or "main table"
+            r, label = results[k], ("shipped: " + k.split("/")[3]) if k.count("/") >= 3 else "main table"
             x = np.asarray(r["checkpoints"])
             for i, col in enumerate(("replay_success", "interpolation_success")):
                 y = 100 * np.asarray(r["curves"][col], float)  # (seeds, checkpoints)
@@ -233,16 +243,17 @@ def robustness_rows(results: dict, tasks, methods) -> list[str]:
         return []
     lines = ["| task | method | in-distribution | " + " | ".join(v[len("robust-"):] for v in var)
              + " | worst / in-distribution |", "| --- | --- | --- |" + " --- |" * (len(var) + 1)]
-    for t in tasks:
-        for m in methods:
-            r = results.get(f"{t}/{m}/uniform")
-            if not r or not r.get("selected") or m == "bc_single":
-                continue
-            ind = r["selected"]["replay"]
-            vs = [((r.get("extra_sets") or {}).get(v) or {}).get("selected") for v in var]
-            worst = min((x["mean"] for x in vs if x), default=None)
-            ratio = f"{worst / ind['mean']:.2f}" if worst is not None and ind["mean"] > 0 else "-"
-            lines.append(f"| {t} | {m} | {_pct(ind)} | " + " | ".join(_pct(x) for x in vs) + f" | {ratio} |")
+    rows = [(t, m, f"{t}/{m}/uniform") for t in tasks for m in methods]
+    rows += [(t, f"cogail ({SHIPPED[t]})", f"{t}/cogail/uniform/{SHIPPED[t]}") for t in tasks if t in SHIPPED]
+    for t, m, key in sorted(rows, key=lambda x: tasks.index(x[0])):
+        r = results.get(key)
+        if not r or not r.get("selected") or m == "bc_single":
+            continue
+        ind = r["selected"]["replay"]
+        vs = [((r.get("extra_sets") or {}).get(v) or {}).get("selected") for v in var]
+        worst = min((x["mean"] for x in vs if x), default=None)
+        ratio = f"{worst / ind['mean']:.2f}" if worst is not None and ind["mean"] > 0 else "-"
+        lines.append(f"| {t} | {m} | {_pct(ind)} | " + " | ".join(_pct(x) for x in vs) + f" | {ratio} |")
     return lines
 
 
@@ -271,6 +282,22 @@ def variant_rows(results: dict) -> list[str]:
         (rs, rp), (is_, ip) = figures(results[k], "replay"), figures(results[k], "interpolation")
         lines.append(f"| {k} | {rs} | {rp} | {is_} | {ip} |")
     return lines
+
+
+def shipped_rows(results: dict) -> list[str]:
+    """What ``make train TASK=...`` gives (the ``SHIPPED`` variant of each task, else its main Co-GAIL row): replay and
+    interpolation on test at the checkpoint selected on validation, by the paper's protocol and at the last one."""
+    lines = ["| task (run) | replay: selected | replay: paper protocol | replay: last | interpolation: selected "
+             "| interpolation: paper protocol | interpolation: last |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    for t in ("fetchq", "handover", "seqmanip"):
+        key = next((k for k in (f"{t}/cogail/uniform/{SHIPPED.get(t)}", f"{t}/cogail/uniform") if k in results), None)
+        r = results.get(key) or {}
+        if not r.get("paper_protocol") or not r.get("last"):
+            continue
+        cells = [c for col in ("replay", "interpolation")
+                 for c in (fmt(r["selected"][col]), fmt(r["paper_protocol"][col]), fmt(r["last"][col]))]
+        lines.append(f"| {t} ({'/'.join(key.split('/')[3:]) or 'main table'}) | " + " | ".join(cells) + " |")
+    return lines if len(lines) > 2 else []
 
 
 def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None) -> None:
@@ -303,15 +330,18 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
             if has_png:
                 rel = os.path.relpath(out / "fig3_strategies.png", readme.resolve().parent)
                 block += ["", f"![Fig. 3: strategy shares on D1 and D2]({Path(rel).as_posix()})"]
-        if var:
-            block += ["", "Variants of the shipped settings (test, %):", "", *var]
+        ship = shipped_rows(results)
+        if ship:
+            rel = Path(os.path.relpath(out / "variants.md", readme.resolve().parent)).as_posix()
+            block += ["", "Co-GAIL with the settings `make train` uses (test, %; every variant measured: "
+                      f"[{rel}]({rel})):", "", *ship]
         if has_curves:
             rel = Path(os.path.relpath(out / "curves.png", readme.resolve().parent)).as_posix()
             block += ["", "Learning curves (test, mean +- std over seeds; dotted: the checkpoint selected on "
                       "validation):", "", f"![Co-GAIL learning curves]({rel})"]
         if rob:
             rel = Path(os.path.relpath(out / "robustness.md", readme.resolve().parent)).as_posix()
-            mine = rob[:2] + [r for r in rob[2:] if r.split("|")[2].strip() == "cogail"]
+            mine = rob[:2] + [r for r in rob[2:] if r.split("|")[2].strip().startswith("cogail")]
             block += ["", "Co-GAIL's replay against varied humans (selected checkpoint, test, %; the last column: the "
                       f"worst variation's success over in-distribution replay; every method: [{rel}]({rel})):", "",
                       *mine]

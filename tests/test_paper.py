@@ -141,3 +141,37 @@ def test_learning_curves_figure(tmp_path):
                "handover/ma_gail/uniform": with_curves}  # another method: not drawn
     assert paper.curves_png(results, tmp_path / "curves.png")
     assert (tmp_path / "curves.png").stat().st_size > 10_000
+
+
+def test_readme_shows_the_shipped_settings_with_their_last_checkpoint_and_robustness(tmp_path):
+    """The README block has a row per task for the run with `make train`'s settings (its SHIPPED variant, else the
+    main row), with the last checkpoint beside the selected one, and that run in the robustness table."""
+    var = {"extra_sets": {"robust-slow": {"selected": _s(0.45)}, "robust-detour": {"selected": _s(0.3)}}}
+    results = {"fetchq/cogail/uniform": {**_res(0.55, 0.6), **var},
+               f"fetchq/cogail/uniform/{paper.SHIPPED['fetchq']}": {**_res(0.6, 0.7), **var,
+                                                                     "last": {"replay": _s(0.5), "interpolation": _s(0.3)}},
+               "handover/cogail/uniform": _res(0.4, 0.45)}
+    out, readme = tmp_path / "out", tmp_path / "README.md"
+    out.mkdir()
+    (out / "paper.json").write_text(json.dumps(results))
+    readme.write_text(f"{paper.BEGIN}\n{paper.END}\n")
+    assert paper.main(["--out", str(out), "--tables-only", "--readme", str(readme)]) == 0
+    doc = readme.read_text()
+    assert (f"| fetchq ({paper.SHIPPED['fetchq']}) | 60.0 +- 1.0 | 70.0 +- 2.0 | 50.0 +- 1.0 | 10.0 +- 1.0 | "
+            "20.0 +- 2.0 | 30.0 +- 1.0 |") in doc
+    assert "| handover (main table) | 40.0 +- 1.0 | 45.0 +- 2.0 | 40.0 +- 1.0 |" in doc
+    assert f"| fetchq | cogail ({paper.SHIPPED['fetchq']}) | 60.0 | 45.0 | 30.0 | 0.50 |" in doc
+    assert "| fetchq | cogail | 55.0 | 45.0 | 30.0 | 0.55 |" in doc
+
+
+def test_shipped_labels_match_the_task_configs():
+    """SHIPPED names, per task, the variant with experiments/<task>_paper.json's settings: keep them in step."""
+    root = Path(__file__).parents[1] / "experiments"
+    for task, label in paper.SHIPPED.items():
+        cfg = json.loads((root / f"{task}_paper.json").read_text())
+        if label.startswith("train-varied-"):
+            assert cfg.get("train_varied") == int(label.rsplit("-", 1)[1]), task
+        elif label.startswith("shipped-") and label.endswith("-demos"):
+            assert cfg.get("num_demos") == int(label.split("-")[1]) and not cfg.get("train_varied"), task
+        else:
+            raise AssertionError(f"{task}: unknown shipped label {label}")

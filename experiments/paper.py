@@ -333,8 +333,8 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
         ship = shipped_rows(results)
         if ship:
             rel = Path(os.path.relpath(out / "variants.md", readme.resolve().parent)).as_posix()
-            block += ["", "Co-GAIL with the settings `make train` uses (test, %; every variant measured: "
-                      f"[{rel}]({rel})):", "", *ship]
+            more = f"; every variant measured: [{rel}]({rel})" if var else ""
+            block += ["", f"Co-GAIL with the settings `make train` uses (test, %{more}):", "", *ship]
         if has_curves:
             rel = Path(os.path.relpath(out / "curves.png", readme.resolve().parent)).as_posix()
             block += ["", "Learning curves (test, mean +- std over seeds; dotted: the checkpoint selected on "

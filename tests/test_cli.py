@@ -42,6 +42,27 @@ def test_user_errors_are_one_clear_line(args, needle, tmp_path):
     assert len(r.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.parametrize("error,answered", [
+    ("INTERNAL: Failed to get configs for: 14 out of 14 instructions. BlasLt is unavailable", True),
+    ("RESOURCE_EXHAUSTED: Out of memory while trying to allocate 123456 bytes.", True),
+    ("INTERNAL: something else went wrong in the kernel", False),
+])
+def test_a_device_out_of_memory_is_one_clear_line(error, answered, monkeypatch, capsys):
+    import jax
+
+    def fail(args):
+        raise jax.errors.JaxRuntimeError(error)
+
+    monkeypatch.setattr(cli, "_dispatch", fail)
+    if not answered:  # any other device error keeps its traceback
+        with pytest.raises(jax.errors.JaxRuntimeError):
+            cli.main(["train", "--run", "x"])
+        return
+    assert cli.main(["train", "--run", "x"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "XLA_PYTHON_CLIENT_MEM_FRACTION" in err[0] and "--resume" in err[0]
+
+
 @pytest.mark.parametrize("args", [["train", "--run", "x", "--method", "nope"], ["train", "--run", "x", "--seeds", "a,b"],
                                   ["train", "--run", "x", "--num-envs", "0"]])
 def test_bad_flags(args):

@@ -272,6 +272,13 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print(f"cogail {args.command}: interrupted; a training run continues with --resume", file=sys.stderr)
         return 130
+    except Exception as e:  # noqa: BLE001 -- only a device out of memory is answered here; the rest re-raises
+        from .devices import memory_error
+
+        if (message := memory_error(e)) is None:
+            raise
+        print(f"cogail {args.command}: error: {message}", file=sys.stderr)
+        return 2
 
 
 def _dispatch(a) -> int:

@@ -1,5 +1,6 @@
-"""What `cogail train` says about the machine at start: the devices it runs on, and a warning when an MJX
-task at a paper-sized budget is about to run on the CPU (with a time estimate and how to get the GPU build)."""
+"""What `cogail train` says about the machine: the devices it runs on, a warning when an MJX task at a
+paper-sized budget is about to run on the CPU (with a time estimate and how to get the GPU build), and one
+sentence for a device that runs out of memory."""
 from __future__ import annotations
 
 import os
@@ -37,3 +38,18 @@ def cpu_warning(cfg) -> list[str]:
             f"({os.cpu_count() or 1} cores): about {took} of training, plus BC and evaluation (one GPU: minutes)",
             "warning: on an NVIDIA GPU machine, `make install` installs the CUDA build of JAX "
             "(`nvidia-smi` must work); check with `python -c 'import jax; print(jax.devices())'`"]
+
+
+# What XLA's errors say when a device's memory runs out: this run is too large, or another process holds the GPU's
+# memory (JAX takes 75 % of it when a process starts, so a second process on the same GPU fails to create its
+# cuBLAS handles while compiling).
+MEMORY_SIGNS = ("resource_exhausted", "out of memory", "failed to create cublas handle", "blaslt is unavailable")
+
+
+def memory_error(e: BaseException) -> str | None:
+    """One sentence for a device error caused by memory, else None."""
+    if not isinstance(e, jax.errors.JaxRuntimeError) or not any(m in str(e).lower() for m in MEMORY_SIGNS):
+        return None
+    return ("the device ran out of memory: if another process uses the same GPU, give each one a share "
+            "(e.g. XLA_PYTHON_CLIENT_MEM_FRACTION=0.4 for two), else run fewer envs or seeds; "
+            "an interrupted training run continues with --resume")

@@ -18,6 +18,9 @@ evaluation need:
   (team_state, action)`` -- the scripted human-human team, pure JAX, vmappable. ``mix`` is a vector of
   strategy probabilities (len(strategy_names)).
 * ``render(state) -> np.ndarray`` -- an RGB frame (H, W, 3) uint8 of one (unbatched) state.
+* ``replay_hold(state, a_h) -> (wait, a_wait)`` (optional; default: never waits) -- the patient human of the
+  replay protocol: whether a replayed human about to take its recorded action ``a_h`` waits instead, because that
+  action would let go of something its partner has not taken yet, and what it does while it waits.
 
 ``State.metrics`` holds at least ``success`` (float 0/1, sticky within an episode) and the task's
 strategy events. ``State.info`` holds at least ``t`` (int32 step counter) and ``truncation`` (float 0/1).
@@ -101,6 +104,16 @@ class CollabEnv(Env):
         if getattr(self, "spec_tag", ""):
             fingerprint += f"|{self.spec_tag}"
         return hashlib.sha1(fingerprint.encode()).hexdigest()[:12]
+
+    def replay_hold(self, state: State, a_h: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Whether a patient replayed human waits instead of taking its recorded action ``a_h``, and its action
+        while it waits (see the module docstring). This default never waits."""
+        return jnp.zeros((), bool), a_h
+
+    @property
+    def has_patient_replay(self) -> bool:
+        """Whether the task defines a patient human (``replay_hold``)."""
+        return type(self).replay_hold is not CollabEnv.replay_hold
 
     def split_action(self, action: jax.Array) -> tuple[jax.Array, jax.Array]:
         return action[..., : self.human_action_size], action[..., self.human_action_size :]

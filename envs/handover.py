@@ -182,6 +182,14 @@ class Handover(CollabEnv):
             jnp.stack([info["human_grasp"], info["robot_grasp"], info["released"]]),
         ]).astype(jnp.float32)
 
+    def replay_hold(self, state: State, a_h: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The patient human: while it holds the bar that the robot has not taken yet (the auto-release has not
+        fired), it does not open its gripper -- the recorded human opens at the time its own partner had taken the
+        bar, and a recording that has ended (zero actions) opens it too; it holds still, gripper closed, instead."""
+        opens = a_h[6] > -0.5
+        wait = opens & (state.info["human_grasp"] > 0) & (state.info["released"] == 0)
+        return wait, jnp.zeros_like(a_h).at[6].set(-1.0)
+
     # ------------------------------------------------------------------ step
     def step(self, state: State, action: jax.Array) -> State:
         h, r = self.human, self.robot

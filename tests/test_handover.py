@@ -40,7 +40,8 @@ def rollout(env):
             new_state = jax.tree.map(lambda o, n: jnp.where(finished, o, n), state, nxt)
             new_metrics = jax.tree.map(lambda o, n: jnp.where(finished, o, n), metrics, nxt.metrics)
             trace = dict(z=env._obj_pos(nxt.pipeline_state)[2], success=nxt.metrics["success"],
-                         done=nxt.done, finished=finished, phase_h=ts.phase[0])
+                         done=nxt.done, finished=finished, phase_h=ts.phase[0],
+                         wait=env.replay_hold(state, a[:7])[0], r_grasp=state.info["robot_grasp"])
             return (new_state, ts, finished | (nxt.done > 0), new_metrics), trace
 
         carry = (state, ts, jnp.array(False), state.metrics)
@@ -161,3 +162,15 @@ def test_time_limit_is_a_truncation_and_divergence_a_failure(env, first):
     assert float(diverged.done) == 1.0 and float(diverged.info["truncation"]) == 0.0
     assert int(timeout.info["t"]) == env.max_episode_steps
     assert float(timeout.done) == 1.0 and float(timeout.info["truncation"]) == 1.0
+
+
+def test_a_patient_human_holds_on_until_the_robot_has_the_bar(rollout, env):
+    """``replay_hold``: a replayed human about to open its gripper while it holds the bar that the robot has not
+    taken waits instead (still, gripper closed); the scripted team's human never waits before the robot grasps."""
+    _, _, _, trace = rollout
+    assert env.has_patient_replay
+    wait, grasped = trace["wait"], np.maximum.accumulate(trace["r_grasp"] > 0, axis=1)
+    assert wait[-1, RELEASE_AT] and not wait[-1, :RELEASE_AT].any()  # the forced release with nobody taking the bar
+    assert not (wait[: 3 * REPEATS] & ~grasped[: 3 * REPEATS]).any()
+    hold, a_wait = env.replay_hold(jax.tree.map(lambda x: x, env.reset(jax.random.PRNGKey(0))), jnp.ones(7))
+    assert not bool(hold) and float(a_wait[6]) == -1.0 and not np.asarray(a_wait[:6]).any()

@@ -321,3 +321,53 @@ def test_robustness_sets_of_a_run_trained_on_varied_humans_are_flagged():
     assert "trained on" not in evaluate.results_markdown(res)
     res["train_varied"] = 10
     assert "10 varied-human episodes of each variation" in evaluate.results_markdown(res)
+    assert "patient human" not in evaluate.results_markdown(res)
+    res["extra_sets"]["patient-robust-detour"] = e  # the patient replay of a set is said what it is
+    assert "| patient-robust-detour |" in evaluate.results_markdown(res)
+    assert "patient human" in evaluate.results_markdown(res)
+
+
+def test_a_patient_human_waits_then_goes_on_with_its_recording(tiny_cfg, demo_files, fetchq):
+    """Patient replay (a task's ``replay_hold``): a human that waits W steps and then replays its recording from where
+    it stopped ends exactly as the plain replay of that recording with the W waiting steps put in front of it;
+    episodes not flagged patient never wait; fetchq itself defines no patient human."""
+    import jax
+    import jax.numpy as jnp
+
+    from cogail_jax import data, train
+
+    W = 7
+
+    class Waits(type(fetchq)):  # waits W steps (moving by 0.5); its final metrics hold the human's position
+        def replay_hold(self, state, a_h):
+            return state.info["t"] < W, jnp.full_like(a_h, 0.5)
+
+        def _where(self, s):
+            return s.replace(metrics={**s.metrics, "human_x": s.obs[0], "human_y": s.obs[1]})
+
+        def reset_from(self, init):
+            return self._where(super().reset_from(init))
+
+        def step(self, state, action):
+            return self._where(super().step(state, action))
+
+    env = Waits(fetchq.max_episode_steps)
+    assert env.has_patient_replay and not fetchq.has_patient_replay
+    cfg = tiny_cfg.replace(bc_steps=300, seeds=(3,))
+    expert = train.expert_arrays(data.load_demos(cfg.demos, env), cfg.history)
+    init, _, nets = train.make_train_fns(cfg, env, train.fit_normalizer(expert))
+    state = init(cfg.seeds, expert)
+    held = evaluate.heldout_arrays(data.load_demos(demo_files[1], env, require_init=True))
+    shifted = dict(held, ah=np.concatenate([np.full((len(held["ah"]), W, held["ah"].shape[2]), 0.5, np.float32),
+                                            held["ah"]], 1), length=held["length"] + W)
+    batch, part = evaluate.stack_sets({"plain": held, "patient": dict(held, patient=np.ones_like(held["patient"])),
+                                       "shifted": shifted}, steps=env.max_episode_steps + W)
+    replay = evaluate.make_replay_fn(cfg, env, nets)
+    m = jax.device_get(replay(state.params, state.norm, {k: batch[k] for k in ("init", "ah", "length", "patient")}))
+    plain = jax.device_get(evaluate.make_replay_fn(cfg, fetchq, nets)(
+        state.params, state.norm, {k: batch[k][part["plain"]] for k in ("init", "ah", "length")}))
+    for k, v in m.items():
+        np.testing.assert_array_equal(v[:, part["patient"]], v[:, part["shifted"]], err_msg=k)
+        if k in plain:  # not flagged patient: the same as the task without a patient human
+            np.testing.assert_array_equal(v[:, part["plain"]], plain[k], err_msg=k)
+    assert not np.array_equal(m["human_x"][:, part["patient"]], m["human_x"][:, part["plain"]])

@@ -89,25 +89,30 @@ def _episodes_fn(cfg: TrainConfig, env, nets):
     (``params`` / ``norm`` with a leading axis P: checkpoints x seeds), in one ``lax.scan`` over time.
 
     ``eps`` (leading axis E): ``init`` (initial conditions), ``replay`` (bool), ``code`` (the interpolation code),
-    ``ah`` / ``length`` (the recorded human of a replay). A replay episode's robot acts from pi_R(s, psi(h)) and its
-    human replays ``ah``; an interpolation episode's co-policy acts for both agents with ``code``; both
-    deterministic (action means), the episode frozen from its end on. The environment steps once per time step
-    for all P x E episodes on one flat axis, so the physics is traced (and compiled) once, under one vmap."""
+    ``ah`` / ``length`` (the recorded human of a replay), ``patient`` (bool). A replay episode's robot acts from
+    pi_R(s, psi(h)) and its human replays ``ah``; a patient one's human waits where the task's ``replay_hold`` says
+    (it would let go of what the robot has not taken yet) and then goes on with its recording from where it
+    stopped; an interpolation episode's co-policy acts for both agents with ``code``; all deterministic (action
+    means), the episode frozen from its end on. The environment steps once per time step for all P x E episodes on
+    one flat axis, so the physics is traced (and compiled) once, under one vmap."""
     actor = nets["actor"].apply
     Ah, Tenv = env.human_action_size, env.max_episode_steps
     psi_code, _ = make_robot_step(cfg, env, nets)
 
-    def act(params, norm, obs, hist, prev_ah, ep, t):
+    def act(params, norm, state, hist, prev_ah, ep, p):
+        """The joint action and the human's; ``p``: the replayed human's position in its recording."""
         z = jnp.where(ep["replay"], psi_code(params, norm, hist, prev_ah),
                       ep["code"] if cfg.use_code else jnp.zeros_like(ep["code"]))
-        mean, _ = actor(params["actor"], (obs - norm["mean"]) / norm["std"], z)
+        mean, _ = actor(params["actor"], (state.obs - norm["mean"]) / norm["std"], z)
         a = jnp.clip(mean, -1, 1)
-        recorded = jnp.where(t < ep["length"], ep["ah"][jnp.minimum(t, ep["ah"].shape[0] - 1)], 0.0)
-        a_h = jnp.where(ep["replay"], recorded, a[:Ah])
-        return jnp.concatenate([a_h, a[Ah:]]), a_h
+        recorded = jnp.where(p < ep["length"], ep["ah"][jnp.minimum(p, ep["ah"].shape[0] - 1)], 0.0)
+        wait, a_wait = env.replay_hold(state, recorded)
+        wait = wait & ep["patient"] & ep["replay"]
+        a_h = jnp.where(ep["replay"], jnp.where(wait, a_wait, recorded), a[:Ah])
+        return jnp.concatenate([a_h, a[Ah:]]), a_h, p + 1 - wait.astype(p.dtype)
 
-    per_param = jax.vmap(act, in_axes=(None, None, 0, 0, 0, 0, None))  # episodes
-    act_all = jax.vmap(per_param, in_axes=(0, 0, 0, 0, 0, None, None))  # parameter sets
+    per_param = jax.vmap(act, in_axes=(None, None, 0, 0, 0, 0, 0))  # episodes
+    act_all = jax.vmap(per_param, in_axes=(0, 0, 0, 0, 0, None, 0))  # parameter sets
 
     def run(params, norm, eps):
         P, E = jax.tree.leaves(params)[0].shape[0], eps["init"].shape[0]
@@ -115,25 +120,27 @@ def _episodes_fn(cfg: TrainConfig, env, nets):
         state = jax.tree.map(lambda x: _flat(jnp.broadcast_to(x, (P,) + x.shape)), first)
         hist = jnp.repeat(state.obs[:, None], cfg.history + 1, 1)
 
-        def body(carry, t):
-            state, hist, prev_ah, fin = carry
+        def body(carry, _):
+            state, hist, prev_ah, fin, pos = carry
             unflat = lambda x: x.reshape((P, E) + x.shape[1:])  # noqa: E731
-            action, a_h = act_all(params, norm, unflat(state.obs), unflat(hist), unflat(prev_ah), eps, t)
+            action, a_h, pos = act_all(params, norm, jax.tree.map(unflat, state), unflat(hist), unflat(prev_ah),
+                                       eps, unflat(pos))
             nxt = jax.vmap(env.step)(state, _flat(action))
             hist = jnp.concatenate([hist[:, 1:], nxt.obs[:, None]], 1)
-            return (jax.vmap(_freeze)(fin, state, nxt), hist, _flat(a_h), fin | (nxt.done > 0)), None
+            return (jax.vmap(_freeze)(fin, state, nxt), hist, _flat(a_h), fin | (nxt.done > 0), _flat(pos)), None
 
-        carry = (state, hist, jnp.zeros((P * E, Ah)), jnp.zeros((P * E,), bool))
-        (state, _, _, _), _ = jax.lax.scan(body, carry, jnp.arange(Tenv))
+        carry = (state, hist, jnp.zeros((P * E, Ah)), jnp.zeros((P * E,), bool), jnp.zeros((P * E,), jnp.int32))
+        (state, _, _, _, _), _ = jax.lax.scan(body, carry, None, length=Tenv)
         return jax.tree.map(lambda x: x.reshape((P, E) + x.shape[1:]), state.metrics)
 
     return run
 
 
 def replay_episodes(episodes: dict, code_dim: int) -> dict:
-    """Replay episodes (``init``, ``ah``, ``length``) in the form ``_episodes_fn`` runs."""
+    """Replay episodes (``init``, ``ah``, ``length``, optional ``patient``) in the form ``_episodes_fn`` runs."""
     n = episodes["length"].shape[0]
     return {"init": episodes["init"], "ah": episodes["ah"], "length": episodes["length"],
+            "patient": jnp.asarray(episodes.get("patient", jnp.zeros((n,), bool)), bool),
             "replay": jnp.ones((n,), bool), "code": jnp.zeros((n, code_dim), jnp.float32)}
 
 
@@ -173,7 +180,8 @@ def make_eval_fn(cfg: TrainConfig, env, nets):
         params, norm = jax.tree.map(_flat, (params, norm))
         rp = replay_episodes(held, cfg.code_dim)
         T = rp["ah"].shape[1]
-        interp = {"init": jax.vmap(env.sample_init)(jax.random.split(jax.random.PRNGKey(EVAL_SEED), n)), "replay": jnp.zeros((n,), bool),
+        interp = {"init": jax.vmap(env.sample_init)(jax.random.split(jax.random.PRNGKey(EVAL_SEED), n)),
+                  "replay": jnp.zeros((n,), bool), "patient": jnp.zeros((n,), bool),
                   "code": codes, "ah": jnp.zeros((n, T, env.human_action_size)), "length": jnp.zeros((n,), jnp.int32)}
         eps = jax.tree.map(lambda a, b: jnp.concatenate([a, b.astype(a.dtype)]), interp, rp)
         m = run(params, norm, eps)
@@ -186,11 +194,12 @@ def make_eval_fn(cfg: TrainConfig, env, nets):
     return jax.jit(evaluate)
 
 
-def heldout_arrays(demos) -> dict[str, np.ndarray]:
+def heldout_arrays(demos, patient: bool = False) -> dict[str, np.ndarray]:
+    """A demonstration set as replay episodes; ``patient``: its humans wait for the robot (``_episodes_fn``)."""
     prev = np.zeros_like(demos.actions_human)
     prev[:, 1:] = demos.actions_human[:, :-1]
     return {"init": demos.init, "ah": demos.actions_human, "length": demos.length, "obs": demos.obs, "prev_ah": prev,
-            "strategy": demos.strategy}
+            "strategy": demos.strategy, "patient": np.full(demos.length.shape, bool(patient))}
 
 
 def stack_sets(sets: dict[str, dict], steps: int = 0) -> tuple[dict[str, np.ndarray], dict[str, slice]]:
@@ -198,7 +207,7 @@ def stack_sets(sets: dict[str, dict], steps: int = 0) -> tuple[dict[str, np.ndar
     the env's ``max_episode_steps``, so that the shapes do not depend on the data) and concatenated along the
     episode axis, so that one compiled evaluation program serves them all (e.g. test and validation: they differ
     in data only). Returns the batch (without ``strategy``) and each set's slice of the episode axis."""
-    keys = ("init", "ah", "length", "obs", "prev_ah")
+    keys = ("init", "ah", "length", "obs", "prev_ah", "patient")
     T = max([int(steps)] + [int(v["ah"].shape[1]) for v in sets.values()])
     out, slices, i = {k: [] for k in keys}, {}, 0
     for name, v in sets.items():
@@ -206,7 +215,7 @@ def stack_sets(sets: dict[str, dict], steps: int = 0) -> tuple[dict[str, np.ndar
         slices[name] = slice(i, i + n)
         i += n
         for k in keys:
-            x = np.asarray(v[k])
+            x = np.asarray(v[k]) if k in v else np.zeros((n,), bool)
             if x.ndim == 3 and x.shape[1] < T:
                 x = np.concatenate([x, np.zeros((n, T - x.shape[1], x.shape[2]), x.dtype)], 1)
             out[k].append(x)
@@ -460,6 +469,11 @@ def results_markdown(res: dict) -> str:
                   "| --- | --- | --- | --- |"]
         for name, e in res["extra_sets"].items():
             lines += extra_set_markdown(name, e)
+        if any(name.startswith("patient-") for name in res["extra_sets"]):
+            lines += ["", "patient-*: the same recordings replayed with a patient human, who does not let go of what "
+                      "the robot has not taken yet but waits for it and then goes on with its recording; the plain "
+                      "replay lets go when the recorded human did, so a robot a few steps later than the "
+                      "demonstrator fails there."]
         if res.get("train_varied"):
             lines += ["", f"The training set held {res['train_varied']} varied-human episodes of each variation "
                       "(train_varied): the robust-* sets are kinds of person the robot was trained on, not new ones."]

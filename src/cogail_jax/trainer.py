@@ -374,12 +374,11 @@ def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict) -> 
     replay = evaluate.make_replay_fn(s.cfg, s.env, s.nets)
     cks = _extra_set_checkpoints(res)
     states = {st: _checkpoint_params(mgr, abstract, None, st) for st in sorted(set(cks.values()))}
-    eps = {name: evaluate.heldout_arrays(data.load_demos(path, s.env, require_init=True))
-           for name, path in extra_sets.items()}
+    eps = _extra_episodes(s, extra_sets)
     if not eps:
         return {}
     batch, part = evaluate.stack_sets(eps, steps=s.env.max_episode_steps)
-    arrays = {k: batch[k] for k in ("init", "ah", "length")}
+    arrays = {k: batch[k] for k in ("init", "ah", "length", "patient")}
     succ = {key: np.asarray(jax.device_get(replay(states[st]["params"], states[st]["norm"], arrays))["success"])
             for key, st in cks.items()}
     return {name: evaluate.summarize_extra_set({key: x[:, part[name]] for key, x in succ.items()},
@@ -499,8 +498,7 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
         if not steps:
             raise RunError(f"{run_dir} has no checkpoints yet: train it first")
         abstract = jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert))
-        eps = {name: evaluate.heldout_arrays(data.load_demos(path, s.env, require_init=True))
-               for name, path in sets.items()}
+        eps = _extra_episodes(s, sets)
         held, part = evaluate.stack_sets({"test": s.heldout, "validation": s.validation,
                                           **{EXTRA + name: e for name, e in eps.items()}},
                                          steps=s.env.max_episode_steps)
@@ -514,6 +512,15 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
         _write_eval_outputs(run_dir, s, res, at, lat, sets, robustness)
     timing.write(run_dir, timing.merge_eval(timing.read(run_dir), clock, **timing.device_info()))
     return res
+
+
+PATIENT = "patient-"  # an extra set replayed with a patient human (evaluate._episodes_fn, the task's replay_hold)
+
+
+def _extra_episodes(s: Setup, sets: dict[str, str]) -> dict[str, dict]:
+    """The extra sets' replay episodes; a set named ``patient-...`` is replayed with a patient human."""
+    return {name: evaluate.heldout_arrays(data.load_demos(path, s.env, require_init=True),
+                                          patient=name.startswith(PATIENT)) for name, path in sets.items()}
 
 
 def _eval_setup(run_dir: Path, sets: dict[str, str], robustness: bool) -> tuple[Setup, dict[str, str]]:
@@ -530,7 +537,10 @@ def _eval_setup(run_dir: Path, sets: dict[str, str], robustness: bool) -> tuple[
     if robustness:
         from . import robustness as rb
 
-        sets.update(rb.ensure_robustness_sets(s.env, mix=s.cfg.mix))
+        varied = rb.ensure_robustness_sets(s.env, mix=s.cfg.mix)
+        sets.update(varied)
+        if s.env.has_patient_replay:  # the same humans, waiting for the robot where the task says
+            sets.update({PATIENT + name: path for name, path in {"test": s.files["test"], **varied}.items()})
     return s, sets
 
 

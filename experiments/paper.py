@@ -234,14 +234,16 @@ def _pct(d) -> str:
     return f"{100 * d['mean']:.1f}" if d else "-"
 
 
-def robustness_rows(results: dict, tasks, methods) -> list[str]:
-    """Replay success against varied humans at the selected checkpoint, next to in-distribution replay there."""
+def robustness_rows(results: dict, tasks, methods, prefix: str = "robust-", base: str | None = None) -> list[str]:
+    """Replay success against varied humans at the selected checkpoint, next to in-distribution replay there.
+    ``prefix``: the varied-human sets (``patient-robust-``: replayed with a patient human); ``base``: the extra set
+    whose replay is the in-distribution figure (None: the test split's replay)."""
     var = []
     for r in results.values():
-        var += [k for k in (r.get("extra_sets") or {}) if k.startswith("robust-") and k not in var]
+        var += [k for k in (r.get("extra_sets") or {}) if k.startswith(prefix) and k not in var]
     if not var:
         return []
-    lines = ["| task | method | in-distribution | " + " | ".join(v[len("robust-"):] for v in var)
+    lines = ["| task | method | in-distribution | " + " | ".join(v[len(prefix):] for v in var)
              + " | worst / in-distribution |", "| --- | --- | --- |" + " --- |" * (len(var) + 1)]
     rows = [(t, m, f"{t}/{m}/uniform") for t in tasks for m in methods]
     rows += [(t, f"cogail ({SHIPPED[t]})", f"{t}/cogail/uniform/{SHIPPED[t]}") for t in tasks if t in SHIPPED]
@@ -249,7 +251,9 @@ def robustness_rows(results: dict, tasks, methods) -> list[str]:
         r = results.get(key)
         if not r or not r.get("selected") or m == "bc_single":
             continue
-        ind = r["selected"]["replay"]
+        ind = r["selected"]["replay"] if base is None else ((r.get("extra_sets") or {}).get(base) or {}).get("selected")
+        if not ind:
+            continue
         vs = [((r.get("extra_sets") or {}).get(v) or {}).get("selected") for v in var]
         worst = min((x["mean"] for x in vs if x), default=None)
         ratio = f"{worst / ind['mean']:.2f}" if worst is not None and ind["mean"] > 0 else "-"
@@ -310,6 +314,12 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
                               ("variants.md", "Variants of the shipped settings (%, test)", var)):
         if rows:
             (out / name).write_text(f"# {title}\n\n" + "\n".join(rows) + "\n")
+    patient = robustness_rows(results, tasks, methods, "patient-robust-", "patient-test")
+    if rob and patient:
+        with open(out / "robustness.md", "a") as f:
+            f.write("\n## With a patient human\n\nThe same recordings, the human waiting for the robot to take what it "
+                    "hands over instead of letting go on its recorded time (handover; in-distribution: the test "
+                    "split replayed so):\n\n" + "\n".join(patient) + "\n")
     (out / "table1_replay.md").write_text("# Table 1: replay success (%)\n\n" + PROTOCOL_NOTE + "\n\n"
                                           + "\n".join(t1) + "\n")
     (out / "table2_interpolation.md").write_text("# Table 2: interpolation success (%)\n\n" + PROTOCOL_NOTE

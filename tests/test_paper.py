@@ -162,6 +162,22 @@ def test_readme_shows_the_shipped_settings_with_their_last_checkpoint_and_robust
     assert "| handover (main table) | 40.0 +- 1.0 | 45.0 +- 2.0 | 40.0 +- 1.0 |" in doc
     assert f"| fetchq | cogail ({paper.SHIPPED['fetchq']}) | 60.0 | 45.0 | 30.0 | 0.50 |" in doc
     assert "| fetchq | cogail | 55.0 | 45.0 | 30.0 | 0.55 |" in doc
+    assert "patient" not in (out / "robustness.md").read_text()
+
+
+def test_robustness_with_a_patient_human_has_its_own_table(tmp_path):
+    """A run replayed with a patient human too (handover's patient-* sets) gets a second robustness table, whose
+    in-distribution figure is the patient replay of the test split."""
+    sets = {"robust-slow": {"selected": _s(0.45)}, "patient-test": {"selected": _s(0.9)},
+            "patient-robust-slow": {"selected": _s(0.81)}}
+    results = {"handover/cogail/uniform": {**_res(0.6, 0.5), "extra_sets": sets}}
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "paper.json").write_text(json.dumps(results))
+    assert paper.main(["--out", str(out), "--tables-only"]) == 0
+    plain, patient = (out / "robustness.md").read_text().split("## With a patient human")
+    assert "| handover | cogail | 60.0 | 45.0 | 0.75 |" in plain and "patient" not in plain
+    assert "| handover | cogail | 90.0 | 81.0 | 0.90 |" in patient
 
 
 def test_shipped_labels_match_the_task_configs():

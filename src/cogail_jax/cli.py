@@ -102,7 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "RUN/robustness_curves.png (per checkpoint); on handover also patient-test and "
                         "patient-robust-<variation>: the same humans waiting for the robot to take the bar")
     e.add_argument("--extra-set", action="append", default=[], metavar="NAME=FILE.hdf5",
-                   help="like --replay-file, under the name NAME (repeatable)")
+                   help="like --replay-file, under the name NAME (repeatable); a NAME starting with patient- is "
+                        "replayed with a patient human where the task has one (handover)")
     e.add_argument("--reevaluate", action="store_true",
                    help="with extra sets: evaluate every checkpoint again even if RUN/results.json is up to date "
                         "(by default only the extra sets are replayed then)")

@@ -120,6 +120,8 @@ CLOSED_TOL = 0.01       # opening (m) below which the drawer counts as closed
 REST_SPEED = 0.05       # object speed (m/s) below which it "rests"
 DRAWER_OPEN_MIN = 0.10  # opening the scripted droppers wait for
 CUE_Y = -0.13           # s1: the scripted robot starts once the human's TCP is past this y (spot side)
+HANDOVER_X_MAX = 0.06   # the patient human's handovers: object x below this (handover spots x <= 0; the drop into
+                        # the open drawer is at x >= 0.085)
 WALL_TOP = FLOOR_Z + WALL_H
 
 
@@ -293,6 +295,16 @@ class SeqManip(CollabEnv):
             rel(hp, h), rel(hp, r), (self._opening(d) / TRAVEL)[None],
             jnp.stack([info["human_grasp"], info["robot_grasp"], info["human_handle"], info["robot_handle"]]),
         ]).astype(jnp.float32)
+
+    def replay_hold(self, state: State, a_h: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The patient human, at a handover only: while it holds the object out (not over the drawer) and the
+        robot does not hold it, it does not open its gripper -- the recorded human opens when its own partner had
+        taken it -- but holds still, gripper closed. (It does not wait for the drawer: a recorded drop goes ahead
+        whether the drawer is open or not.)"""
+        info = state.info
+        out = self._obj_pos(state.pipeline_state)[0] < HANDOVER_X_MAX
+        wait = (a_h[6] > -0.5) & (info["human_grasp"] > 0) & (info["robot_grasp"] == 0) & out
+        return wait, jnp.zeros_like(a_h).at[6].set(-1.0)
 
     # ------------------------------------------------------------------ step
     def step(self, state: State, action: jax.Array) -> State:

@@ -318,7 +318,7 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
     if rob and patient:
         with open(out / "robustness.md", "a") as f:
             f.write("\n## With a patient human\n\nThe same recordings, the human waiting for the robot to take what it "
-                    "hands over instead of letting go on its recorded time (handover; in-distribution: the test "
+                    "hands over instead of letting go on its recorded time (handover, seqmanip; in-distribution: the test "
                     "split replayed so):\n\n" + "\n".join(patient) + "\n")
     (out / "table1_replay.md").write_text("# Table 1: replay success (%)\n\n" + PROTOCOL_NOTE + "\n\n"
                                           + "\n".join(t1) + "\n")

@@ -51,7 +51,8 @@ def rollout(env):
             trace = dict(z=env._obj_pos(nxt.pipeline_state)[2], success=nxt.metrics["success"],
                          done=nxt.done, finished=finished, phase_h=ts.phase[0], phase_r=ts.phase[1],
                          human_y=mc.tcp_pos(state.pipeline_state, env.human)[1],
-                         opening=env._opening(nxt.pipeline_state))
+                         opening=env._opening(nxt.pipeline_state),
+                         wait=env.replay_hold(state, a[:7])[0], r_grasp=state.info["robot_grasp"])
             return (new_state, ts, finished | (nxt.done > 0), new_metrics), trace
 
         carry = (state, ts, jnp.array(False), state.metrics)
@@ -176,3 +177,16 @@ def test_time_limit_is_a_truncation(env, jitted):
     late = step(state.replace(info={**state.info, "t": state.info["t"] + env.max_episode_steps - 1}), a)
     assert int(late.info["t"]) == env.max_episode_steps
     assert float(late.done) == 1.0 and float(late.info["truncation"]) == 1.0
+
+
+def test_a_patient_human_holds_on_at_a_handover_only(rollout, env):
+    """``replay_hold``: the human waits instead of opening its gripper only while it holds the object out and the
+    robot does not hold it: never in the scripted team's episodes before the robot grasps, never when it drops the
+    object into the drawer (robot-opens), and at a forced release away from the drawer with nobody taking it."""
+    sid, _, _, trace, _ = rollout
+    n = 2 * REPEATS
+    wait, grasped = trace["wait"], np.maximum.accumulate(trace["r_grasp"] > 0, axis=1)
+    assert env.has_patient_replay
+    assert not (wait[:n] & ~grasped[:n]).any()
+    assert not wait[:n][np.asarray(sid[:n]) == 2].any()  # robot-opens: the human's release is the drop
+    assert wait[-1, RELEASE_AT] and not wait[-1, :RELEASE_AT].any()

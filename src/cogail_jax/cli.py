@@ -78,8 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
                    help="with --eval: also replay against varied humans (pace, pauses, path, noise, a change of "
                         "mind; cached in the data folder); results in results.json's extra_sets, RUN/robustness.png "
-                        "and RUN/robustness_curves.png (per checkpoint); on handover also the test split and the "
-                        "varied humans replayed with a patient human (patient-*: waits for the robot to take the bar)")
+                        "and RUN/robustness_curves.png (per checkpoint); on handover and seqmanip also the test split and "
+                        "the varied humans replayed with a patient human (patient-*: at a handover it waits for the "
+                        "robot to take the object)")
     t.add_argument("--devices", default=None,
                    help="shard the seed axis over N devices or 'all' (one program; seeds must split evenly)")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -99,11 +100,11 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
                    help="also replay against varied humans (pace, pauses, path, noise, a change of mind; cached in "
                         "the data folder): results.json's extra_sets robust-<variation>, RUN/robustness.png, "
-                        "RUN/robustness_curves.png (per checkpoint); on handover also patient-test and "
-                        "patient-robust-<variation>: the same humans waiting for the robot to take the bar")
+                        "RUN/robustness_curves.png (per checkpoint); on handover and seqmanip also patient-test and "
+                        "patient-robust-<variation>: the same humans waiting at a handover for the robot")
     e.add_argument("--extra-set", action="append", default=[], metavar="NAME=FILE.hdf5",
                    help="like --replay-file, under the name NAME (repeatable); a NAME starting with patient- is "
-                        "replayed with a patient human where the task has one (handover)")
+                        "replayed with a patient human where the task has one (handover, seqmanip)")
     e.add_argument("--reevaluate", action="store_true",
                    help="with extra sets: evaluate every checkpoint again even if RUN/results.json is up to date "
                         "(by default only the extra sets are replayed then)")

@@ -371,3 +371,50 @@ def test_a_patient_human_waits_then_goes_on_with_its_recording(tiny_cfg, demo_fi
         if k in plain:  # not flagged patient: the same as the task without a patient human
             np.testing.assert_array_equal(v[:, part["plain"]], plain[k], err_msg=k)
     assert not np.array_equal(m["human_x"][:, part["patient"]], m["human_x"][:, part["plain"]])
+
+
+def test_a_replay_runs_the_margin_past_a_late_recording(tiny_cfg, demo_files, fetchq):
+    """A replay ends at the time limit, or ``replay_margin`` steps after the human's recording ends where that is
+    later (the waits of a patient human included); an interpolation episode ends at the limit."""
+    import jax
+    import jax.numpy as jnp
+
+    from cogail_jax import data, train
+
+    T = 40
+
+    class Clocked(type(fetchq)):  # its final metrics hold the step count at which the episode was frozen
+        def _where(self, s):
+            return s.replace(metrics={**s.metrics, "t": s.info["t"].astype(jnp.float32)})
+
+        def reset_from(self, init):
+            return self._where(super().reset_from(init))
+
+        def step(self, state, action):
+            return self._where(super().step(state, action))
+
+    env = Clocked(T)
+    margin = evaluate.replay_margin(env)
+    assert margin == round(evaluate.REPLAY_MARGIN * T) > 0
+    cfg = tiny_cfg.replace(bc_steps=300, seeds=(3,), eval_codes=4)
+    expert = train.expert_arrays(data.load_demos(cfg.demos, fetchq), cfg.history)
+    init, _, nets = train.make_train_fns(cfg, env, train.fit_normalizer(expert))
+    state = init(cfg.seeds, expert)
+    held = evaluate.heldout_arrays(data.load_demos(demo_files[1], fetchq, require_init=True))
+    lengths = np.array([3, T - margin, T - 2, T + 5])[: len(held["length"])]
+    held = dict(held, length=lengths, ah=held["ah"][:, :T + 5])
+    batch, _ = evaluate.stack_sets({"test": held}, steps=evaluate.replay_steps(env, lengths))
+    assert batch["ah"].shape[1] == T + 5 + margin == evaluate.replay_steps(env, lengths)
+    m = jax.device_get(evaluate.make_replay_fn(cfg, env, nets)(
+        state.params, state.norm, {k: held[k] for k in ("init", "ah", "length", "patient")}))
+    horizon = np.maximum(T, lengths + margin)
+    ended = m["t"][0]
+    won = m["success"][0] > 0
+    assert np.all(ended[~won] == horizon[~won]) and np.all(ended[won] <= horizon[won]), (ended, horizon)
+    assert not won[2:].all()  # an untrained robot: the late recordings run to their pushed-back limit
+    one = lambda t: jax.tree.map(lambda x: x[None], t)  # noqa: E731
+    out = jax.device_get(evaluate.make_eval_fn(cfg, env, nets)(one(state.params), one(state.norm),
+                                                               {k: batch[k] for k in batch}))
+    np.testing.assert_array_equal(out["replay_metrics"]["t"][0, 0], ended)  # the same in the evaluation batch
+    interp_t, interp_won = out["interp_metrics"]["t"][0, 0], out["interp_success"][0, 0] > 0
+    assert np.all(interp_t[~interp_won] == T) and np.all(interp_t <= T)

@@ -3,7 +3,10 @@
 * interpolation: ``eval_codes`` codes on a uniform grid over (-1, 1)^2; the co-policy acts for both agents
   deterministically (action means); success rate and the executed strategies.
 * replay: the robot acts with pi_R(s, psi(h)) (deterministic) against open-loop replays of held-out human
-  trajectories, each episode started where its demonstration started; success rate.
+  trajectories, each episode started where its demonstration started; success rate. An episode ends at the
+  task's time limit, or ``REPLAY_MARGIN`` of it after the human's recording ends where that is later: a human
+  whose recording runs into the last steps before the limit (a slow or hesitant one) leaves the robot the same
+  time to finish as a typical demonstration does, so the clock does not decide for the person.
 * latent map: the mean psi code of each held-out demonstration.
 
 Reporting (``summarize``): every checkpoint is evaluated on the test split (replay, interpolation, latent codes)
@@ -33,6 +36,20 @@ from .config import TrainConfig
 
 
 EVAL_SEED = 12345  # the interpolation rollouts' initial states: split(PRNGKey(EVAL_SEED), eval_codes), one per code
+REPLAY_MARGIN = 0.2  # a replay runs at least this share of the time limit past the end of the human's recording
+
+
+def replay_margin(env) -> int:
+    """Steps a replay runs, at least, past the end of the human's recording (``REPLAY_MARGIN`` of the limit)."""
+    return int(round(REPLAY_MARGIN * env.max_episode_steps))
+
+
+def replay_steps(env, lengths) -> int:
+    """Time steps that a batch of replays of recordings of ``lengths`` runs: the time limit, or the longest
+    recording plus the margin where that is more (the width to pad a batch's recordings to)."""
+    lengths = np.asarray(lengths)
+    longest = int(lengths.max()) if lengths.size else 0
+    return max(int(env.max_episode_steps), longest + replay_margin(env))
 
 
 def interpolation_codes(n: int) -> jnp.ndarray:
@@ -93,10 +110,13 @@ def _episodes_fn(cfg: TrainConfig, env, nets):
     pi_R(s, psi(h)) and its human replays ``ah``; a patient one's human waits where the task's ``replay_hold`` says
     (it would let go of what the robot has not taken yet) and then goes on with its recording from where it
     stopped; an interpolation episode's co-policy acts for both agents with ``code``; all deterministic (action
-    means), the episode frozen from its end on. The environment steps once per time step for all P x E episodes on
-    one flat axis, so the physics is traced (and compiled) once, under one vmap."""
+    means), the episode frozen from its end on. An episode ends at a terminal state (success, failure) or at the
+    time limit, which a replay's human pushes back to ``replay_margin`` steps after its recording ended (its waits
+    included); the scan runs ``max(limit, eps["ah"].shape[1])`` steps (pad to ``replay_steps``). The environment
+    steps once per time step for all P x E episodes on one flat axis, so the physics is traced (and compiled)
+    once, under one vmap."""
     actor = nets["actor"].apply
-    Ah, Tenv = env.human_action_size, env.max_episode_steps
+    Ah, Tenv, margin = env.human_action_size, env.max_episode_steps, replay_margin(env)
     psi_code, _ = make_robot_step(cfg, env, nets)
 
     def act(params, norm, state, hist, prev_ah, ep, p):
@@ -119,18 +139,28 @@ def _episodes_fn(cfg: TrainConfig, env, nets):
         first = jax.vmap(env.reset_from)(eps["init"])
         state = jax.tree.map(lambda x: _flat(jnp.broadcast_to(x, (P,) + x.shape)), first)
         hist = jnp.repeat(state.obs[:, None], cfg.history + 1, 1)
+        length = _flat(jnp.broadcast_to(jnp.where(eps["replay"], eps["length"], 0), (P, E)))
+        never = jnp.iinfo(jnp.int32).max - margin
 
         def body(carry, _):
-            state, hist, prev_ah, fin, pos = carry
+            state, hist, prev_ah, fin, pos, rec_end = carry
             unflat = lambda x: x.reshape((P, E) + x.shape[1:])  # noqa: E731
             action, a_h, pos = act_all(params, norm, jax.tree.map(unflat, state), unflat(hist), unflat(prev_ah),
                                        eps, unflat(pos))
+            pos = _flat(pos)
             nxt = jax.vmap(env.step)(state, _flat(action))
+            t = nxt.info["t"]
+            rec_end = jnp.minimum(rec_end, jnp.where(pos >= length, t, never))  # when the recording ran out
+            terminal = (nxt.done > 0) & ~(nxt.info["truncation"] > 0)
+            timeout = (t >= Tenv) & (t >= rec_end + margin)
             hist = jnp.concatenate([hist[:, 1:], nxt.obs[:, None]], 1)
-            return (jax.vmap(_freeze)(fin, state, nxt), hist, _flat(a_h), fin | (nxt.done > 0), _flat(pos)), None
+            return (jax.vmap(_freeze)(fin, state, nxt), hist, _flat(a_h), fin | terminal | timeout, pos,
+                    rec_end), None
 
-        carry = (state, hist, jnp.zeros((P * E, Ah)), jnp.zeros((P * E,), bool), jnp.zeros((P * E,), jnp.int32))
-        (state, _, _, _, _), _ = jax.lax.scan(body, carry, None, length=Tenv)
+        carry = (state, hist, jnp.zeros((P * E, Ah)), jnp.zeros((P * E,), bool), jnp.zeros((P * E,), jnp.int32),
+                 jnp.where(length > 0, never, 0))
+        steps = max(Tenv, eps["ah"].shape[1])
+        (state, _, _, _, _, _), _ = jax.lax.scan(body, carry, None, length=steps)
         return jax.tree.map(lambda x: x.reshape((P, E) + x.shape[1:]), state.metrics)
 
     return run
@@ -149,8 +179,18 @@ def make_replay_fn(cfg: TrainConfig, env, nets):
     (params / norm with a leading seed axis; ``episodes``: ``heldout_arrays`` without ``strategy``). Used for extra
     test sets added to a run evaluated already (``trainer.eval_extra_sets``); ``eval_run`` replays its extra sets
     in the batch of ``make_eval_fn``."""
-    run = _episodes_fn(cfg, env, nets)
-    return jax.jit(lambda params, norm, ep: run(params, norm, replay_episodes(ep, cfg.code_dim)))
+    episodes = _episodes_fn(cfg, env, nets)
+    run = jax.jit(lambda params, norm, ep: episodes(params, norm, replay_episodes(ep, cfg.code_dim)))
+
+    def replay(params, norm, ep):  # recordings padded to the steps the replays run (a host-side shape)
+        width = replay_steps(env, np.asarray(jax.device_get(ep["length"])))
+        ah = ep["ah"]
+        if ah.shape[1] < width:
+            ah = jnp.concatenate([jnp.asarray(ah), jnp.zeros((ah.shape[0], width - ah.shape[1]) + ah.shape[2:],
+                                                            jnp.asarray(ah).dtype)], 1)
+        return run(params, norm, {**ep, "ah": ah})
+
+    return replay
 
 
 def make_eval_fn(cfg: TrainConfig, env, nets):

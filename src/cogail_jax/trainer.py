@@ -368,6 +368,11 @@ def _checkpoint_params(mgr, abstract, memory: dict | None, step: int) -> dict:
     return eval_params(ckpt.restore(mgr, step, abstract))
 
 
+def _lengths(sets) -> np.ndarray:
+    """The recordings' lengths of episode sets (``heldout_arrays``), one array."""
+    return np.concatenate([np.asarray(e["length"]) for e in sets] or [np.zeros(0, int)])
+
+
 def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict) -> dict:
     """Replay each extra set at the selected and the paper-protocol replay checkpoints: all sets stacked into one
     batch (one compiled replay program, one call per checkpoint); returns {name: evaluate.summarize_extra_set(...)}."""
@@ -377,7 +382,7 @@ def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict) -> 
     eps = _extra_episodes(s, extra_sets)
     if not eps:
         return {}
-    batch, part = evaluate.stack_sets(eps, steps=s.env.max_episode_steps)
+    batch, part = evaluate.stack_sets(eps, steps=evaluate.replay_steps(s.env, _lengths(eps.values())))
     arrays = {k: batch[k] for k in ("init", "ah", "length", "patient")}
     succ = {key: np.asarray(jax.device_get(replay(states[st]["params"], states[st]["norm"], arrays))["success"])
             for key, st in cks.items()}
@@ -499,9 +504,8 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
             raise RunError(f"{run_dir} has no checkpoints yet: train it first")
         abstract = jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert))
         eps = _extra_episodes(s, sets)
-        held, part = evaluate.stack_sets({"test": s.heldout, "validation": s.validation,
-                                          **{EXTRA + name: e for name, e in eps.items()}},
-                                         steps=s.env.max_episode_steps)
+        split_sets = {"test": s.heldout, "validation": s.validation, **{EXTRA + n: e for n, e in eps.items()}}
+        held, part = evaluate.stack_sets(split_sets, steps=evaluate.replay_steps(s.env, _lengths(split_sets.values())))
         per_ckpt, codes = _evaluate_checkpoints(s, mgr, abstract, steps, held, part, ckpt_batch, progress, memory)
         if not per_ckpt:
             raise ckpt.nothing_restored(mgr, run_dir)

@@ -317,8 +317,10 @@ def test_robustness_sets_of_a_run_trained_on_varied_humans_are_flagged():
     res = evaluate.summarize("fetchq", "cogail", SEEDS, _per_ckpt(), ("a", "b", "c", "d"), None)
     e = {"episodes": 4, "selected": {"checkpoint": 40, "mean": 0.5, "std": 0.0, "per_seed": {}},
          "paper_protocol": None}
+    assert "recording" not in evaluate.results_markdown(res)
     res["extra_sets"] = {"robust-detour": e}
     assert "trained on" not in evaluate.results_markdown(res)
+    assert "20 % of it after the end of the human's recording" in evaluate.results_markdown(res)  # the margin said
     res["train_varied"] = 10
     assert "10 varied-human episodes of each variation" in evaluate.results_markdown(res)
     assert "patient human" not in evaluate.results_markdown(res)

@@ -77,7 +77,7 @@ MIXES ?= uniform
 paper: install
 	$(BIN)/python experiments/paper.py --tasks $(TASKS) --methods $(METHODS) --mixes $(MIXES) --out results/paper
 
-# The throughput table of TASK, then the seconds per phase (demos, bc, compile, train, eval, write) of every
+# The throughput table of TASK, then the seconds per phase (start, demos, bc, compile, train, eval, write) of every
 # run under runs/ that has a speed.json (e.g. the `make train` runs of each task).
 bench: install
 	$(BIN)/cogail bench $(TASK) runs/bench-$(TASK).json

@@ -54,14 +54,29 @@ def test_bench_phases_prints_a_table_of_runs(tmp_path, capsys):
     (old / "speed.json").write_text(json.dumps({"env_steps_per_s": 2e5}))
     assert cli.main(["bench", "--phases", str(run), str(old)]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    assert lines[0] == "| run | task | demos | bc | compile | train | eval | write | total | env steps/s |"
-    assert lines[2].startswith(f"| {run} | handover | 1.5 | 2.0 | 3.0 | 40.0 | 7.0 | 0.5 | ")
+    assert lines[0] == "| run | task | start | demos | bc | compile | train | eval | write | total | env steps/s |"
+    assert lines[2].startswith(f"| {run} | handover | 0.0 | 1.5 | 2.0 | 3.0 | 40.0 | 7.0 | 0.5 | ")
     assert lines[2].endswith(" | 100 |")
-    assert lines[3] == f"| {old} | - | - | - | - | - | - | - | - | 2e+05 |"
+    assert lines[3] == f"| {old} | - | - | - | - | - | - | - | - | - | 2e+05 |"
+
     assert cli.main(["bench", "--phases", str(tmp_path / "none")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no readable speed.json" in err[0]
 
+
+def test_the_start_phase_counts_from_the_command_start_once():
+    import time
+
+    timing.mark_process_start()
+    time.sleep(0.05)
+    clock = timing.Phases()
+    clock.take_process_start()
+    assert clock.seconds["start"] >= 0.05 and clock.elapsed() >= 0.05  # the origin moved back to the command's start
+    again = timing.Phases()
+    again.take_process_start()  # taken already: a second run in the same process starts from its own call
+    assert "start" not in again.seconds and again.elapsed() < 0.05
+    rec = timing.merge_train({}, clock, 0, 0.0, False)
+    assert rec["phases"]["start"] >= 0.05 and rec["total"] >= rec["phases"]["start"]
 
 def test_compile_cache_folder():
     home = {"XDG_CACHE_HOME": "/x"}

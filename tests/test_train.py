@@ -151,6 +151,7 @@ def test_resume_is_exact(tiny_cfg, tmp_path):
     assert set(speed["phases"]) == set(timing.PHASES)
     assert all(isinstance(v, float) and v >= 0 for v in [*speed["phases"].values(), speed["total"]])
     assert speed["phases"]["eval"] > 0 and speed["total"] >= sum(speed["phases"].values())
+    assert speed["phases"]["start"] > 0  # the run folder and the devices, before the demonstrations
     assert speed["env_steps_per_s"] > 0 and speed["updates"] == trainer.total_updates(tiny_cfg)
     assert speed["device"] and isinstance(speed["deterministic_ops"], bool) and speed["task"] == "fetchq"
 

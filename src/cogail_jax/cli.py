@@ -52,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("train", help="train a method on a task (resumable)",
                        description="Train with Co-GAIL (or a baseline preset); every seed runs in one vmapped "
                                    "program. Checkpoints, config and TensorBoard logs go to --run, and "
-                                   "RUN/speed.json gets the seconds of each phase (demos, bc, compile, train; "
+                                   "RUN/speed.json gets the seconds of each phase (start, demos, bc, compile, train; "
                                    "eval and write with --eval or `cogail eval`), the env steps/s after "
                                    "compilation and the device; `cogail bench --phases RUN` tabulates them.")
     t.add_argument("--task", default=None, choices=TASK_NAMES, help="task (default fetchq or the config's)")
@@ -258,6 +258,9 @@ def _config_from_args(a) -> "TrainConfig":  # noqa: F821
 
 
 def main(argv=None) -> int:
+    from .timing import mark_process_start
+
+    mark_process_start()  # speed.json's "start" phase counts from here
     args = build_parser().parse_args(argv)
     set_deterministic(not getattr(args, "nondeterministic", False))  # before JAX starts its backend
     enable_compile_cache(not getattr(args, "no_compile_cache", False))  # before anything compiles
@@ -283,6 +286,8 @@ def main(argv=None) -> int:
             raise
         print(f"cogail {args.command}: error: {message}", file=sys.stderr)
         return 2
+    finally:
+        mark_process_start(False)
 
 
 def _dispatch(a) -> int:

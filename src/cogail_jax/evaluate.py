@@ -509,8 +509,8 @@ def results_markdown(res: dict) -> str:
                   "| --- | --- | --- | --- |"]
         for name, e in res["extra_sets"].items():
             lines += extra_set_markdown(name, e)
-        lines += ["", f"A replay ends at the task's time limit, or {100 * REPLAY_MARGIN:.0f} % of it after the end of the "
-                  "human's recording where that is later: a slow or hesitant human's recording can run into the "
+        lines += ["", f"A replay ends at the task's time limit, or {100 * REPLAY_MARGIN:.0f} % of it after the end of "
+                  "the human's recording where that is later: a slow or hesitant human's recording can run into the "
                   "limit's last steps, and the clock would decide instead of the robot."]
         if any(name.startswith("patient-") for name in res["extra_sets"]):
             lines += ["", "patient-*: the same recordings replayed with a patient human, who does not let go of what "

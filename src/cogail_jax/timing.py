@@ -2,6 +2,8 @@
 
 Phases, in seconds (``PHASES``):
 
+* ``start``: from the command's start to the training demonstrations: imports, the accelerator's start-up and the
+  run folder (from ``train_run``'s call when it is not run by the ``cogail`` command);
 * ``demos``: loading (or generating and caching) the training demonstrations and building the programs;
 * ``bc``: the initial state and behaviour-cloning pre-training, their compilation included (0 on resume);
 * ``compile``: the first training call minus a steady-state call (the median of the later calls; the whole first
@@ -23,8 +25,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-PHASES = ("demos", "bc", "compile", "train", "eval", "write")
-TRAIN_PHASES = ("demos", "bc", "compile", "train")
+PHASES = ("start", "demos", "bc", "compile", "train", "eval", "write")
+TRAIN_PHASES = ("start", "demos", "bc", "compile", "train")
 EVAL_PHASES = ("eval", "write")
 FILE = "speed.json"
 
@@ -50,6 +52,25 @@ class Phases:
 
     def elapsed(self) -> float:
         return time.perf_counter() - self._t0
+
+    def take_process_start(self) -> None:
+        """Move this clock's origin back to the command's start (``mark_process_start``), counting the seconds in
+        between as ``start``; a no-op when no command marked one (or it was taken already)."""
+        global _process_t0
+        if _process_t0 is not None and _process_t0 < self._t0:
+            self.add("start", self._t0 - _process_t0)
+            self._t0 = _process_t0
+        _process_t0 = None
+
+
+_process_t0: float | None = None
+
+
+def mark_process_start(on: bool = True) -> None:
+    """Note the command's start (the ``cogail`` command calls it first, and with ``on=False`` when it ends), for
+    the ``start`` phase of a run it trains."""
+    global _process_t0
+    _process_t0 = time.perf_counter() if on else None
 
 
 def compile_estimate(call_seconds: list[float]) -> float:
@@ -136,5 +157,5 @@ def phases_table(records: list[tuple[str, dict]]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["PHASES", "Phases", "compile_estimate", "read", "write", "merge_train", "merge_eval", "device_info",
+__all__ = ["PHASES", "Phases", "mark_process_start", "compile_estimate", "read", "write", "merge_train", "merge_eval", "device_info",
            "phases_table"]

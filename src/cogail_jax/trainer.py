@@ -305,10 +305,12 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
     (``timing``; a resumed run adds to it). ``keep``: a dict that receives each checkpoint's ``eval_params``
     as it is written, for ``eval_run(..., memory=keep)``."""
     clock = timing.Phases()
+    clock.take_process_start()  # the command's imports before this call count as "start"
     run_dir = Path(run_dir)
-    cfg = prepare_run_dir(cfg, run_dir, resume)
-    from .devices import cpu_warning, describe_devices  # where it runs; a CPU warning for paper-sized MJX runs
-    print("\n".join([describe_devices(), *cpu_warning(cfg)]), flush=True)
+    with clock("start"):
+        cfg = prepare_run_dir(cfg, run_dir, resume)
+        from .devices import cpu_warning, describe_devices  # where it runs; a CPU warning for paper-sized MJX runs
+        print("\n".join([describe_devices(), *cpu_warning(cfg)]), flush=True)
     with clock("demos"):
         s = build(cfg, need_heldout=False)
     mgr = ckpt.manager(run_dir)

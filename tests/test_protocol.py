@@ -376,8 +376,9 @@ def test_a_patient_human_waits_then_goes_on_with_its_recording(tiny_cfg, demo_fi
 
 
 def test_a_replay_runs_the_margin_past_a_late_recording(tiny_cfg, demo_files, fetchq):
-    """A replay ends at the time limit, or ``replay_margin`` steps after the human's recording ends where that is
-    later (the waits of a patient human included); an interpolation episode ends at the limit."""
+    """A human from outside the splits (``margin``) is replayed until the time limit, or ``replay_margin`` steps
+    after its recording ends where that is later; the splits' humans and the interpolation episodes end at the
+    limit, as in the paper."""
     import jax
     import jax.numpy as jnp
 
@@ -404,11 +405,13 @@ def test_a_replay_runs_the_margin_past_a_late_recording(tiny_cfg, demo_files, fe
     state = init(cfg.seeds, expert)
     held = evaluate.heldout_arrays(data.load_demos(demo_files[1], fetchq, require_init=True))
     lengths = np.array([3, T - margin, T - 2, T + 5])[: len(held["length"])]
-    held = dict(held, length=lengths, ah=held["ah"][:, :T + 5])
-    batch, _ = evaluate.stack_sets({"test": held}, steps=evaluate.replay_steps(env, lengths))
+    held = dict(held, length=lengths, ah=held["ah"][:, :T + 5], margin=np.ones(len(lengths), bool))
+    split = dict(held, margin=np.zeros(len(lengths), bool))
+    assert evaluate.replay_steps(env, lengths, split["margin"]) == T
+    batch, part = evaluate.stack_sets({"test": split, "extra": held}, steps=evaluate.replay_steps(env, lengths))
     assert batch["ah"].shape[1] == T + 5 + margin == evaluate.replay_steps(env, lengths)
-    m = jax.device_get(evaluate.make_replay_fn(cfg, env, nets)(
-        state.params, state.norm, {k: held[k] for k in ("init", "ah", "length", "patient")}))
+    keys = ("init", "ah", "length", "patient", "margin")
+    m = jax.device_get(evaluate.make_replay_fn(cfg, env, nets)(state.params, state.norm, {k: held[k] for k in keys}))
     horizon = np.maximum(T, lengths + margin)
     ended = m["t"][0]
     won = m["success"][0] > 0
@@ -417,6 +420,8 @@ def test_a_replay_runs_the_margin_past_a_late_recording(tiny_cfg, demo_files, fe
     one = lambda t: jax.tree.map(lambda x: x[None], t)  # noqa: E731
     out = jax.device_get(evaluate.make_eval_fn(cfg, env, nets)(one(state.params), one(state.norm),
                                                                {k: batch[k] for k in batch}))
-    np.testing.assert_array_equal(out["replay_metrics"]["t"][0, 0], ended)  # the same in the evaluation batch
+    np.testing.assert_array_equal(out["replay_metrics"]["t"][0, 0, part["extra"]], ended)  # the same in a batch
+    plain_t, plain_won = out["replay_metrics"]["t"][0, 0, part["test"]], out["replay_success"][0, 0, part["test"]] > 0
+    assert np.all(plain_t[~plain_won] == T) and np.all(plain_t <= T)  # the splits: the paper's time limit
     interp_t, interp_won = out["interp_metrics"]["t"][0, 0], out["interp_success"][0, 0] > 0
     assert np.all(interp_t[~interp_won] == T) and np.all(interp_t <= T)

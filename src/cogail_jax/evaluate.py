@@ -4,9 +4,9 @@
   deterministically (action means); success rate and the executed strategies.
 * replay: the robot acts with pi_R(s, psi(h)) (deterministic) against open-loop replays of held-out human
   trajectories, each episode started where its demonstration started; success rate. An episode ends at the
-  task's time limit, or ``REPLAY_MARGIN`` of it after the human's recording ends where that is later: a human
-  whose recording runs into the last steps before the limit (a slow or hesitant one) leaves the robot the same
-  time to finish as a typical demonstration does, so the clock does not decide for the person.
+  task's time limit. A human from outside the test and validation splits (a varied human, your own recordings)
+  may end its recording in the limit's last steps (a slow or hesitant one): its replay lasts until ``REPLAY_MARGIN``
+  of the limit after its recording ends where that is later, so that the clock does not decide for the person.
 * latent map: the mean psi code of each held-out demonstration.
 
 Reporting (``summarize``): every checkpoint is evaluated on the test split (replay, interpolation, latent codes)
@@ -36,7 +36,7 @@ from .config import TrainConfig
 
 
 EVAL_SEED = 12345  # the interpolation rollouts' initial states: split(PRNGKey(EVAL_SEED), eval_codes), one per code
-REPLAY_MARGIN = 0.2  # a replay runs at least this share of the time limit past the end of the human's recording
+REPLAY_MARGIN = 0.2  # a margin replay runs at least this share of the time limit past the end of the recording
 
 
 def replay_margin(env) -> int:
@@ -44,10 +44,13 @@ def replay_margin(env) -> int:
     return int(round(REPLAY_MARGIN * env.max_episode_steps))
 
 
-def replay_steps(env, lengths) -> int:
-    """Time steps that a batch of replays of recordings of ``lengths`` runs: the time limit, or the longest
-    recording plus the margin where that is more (the width to pad a batch's recordings to)."""
+def replay_steps(env, lengths, margin=None) -> int:
+    """Time steps that a batch of replays of recordings of ``lengths`` runs (the width to pad a batch's recordings
+    to): the time limit, or the longest recording with a margin (``margin``: bool per recording; default all) plus
+    ``replay_margin`` where that is more."""
     lengths = np.asarray(lengths)
+    if margin is not None:
+        lengths = lengths[np.asarray(margin, bool)]
     longest = int(lengths.max()) if lengths.size else 0
     return max(int(env.max_episode_steps), longest + replay_margin(env))
 
@@ -106,13 +109,13 @@ def _episodes_fn(cfg: TrainConfig, env, nets):
     (``params`` / ``norm`` with a leading axis P: checkpoints x seeds), in one ``lax.scan`` over time.
 
     ``eps`` (leading axis E): ``init`` (initial conditions), ``replay`` (bool), ``code`` (the interpolation code),
-    ``ah`` / ``length`` (the recorded human of a replay), ``patient`` (bool). A replay episode's robot acts from
+    ``ah`` / ``length`` (the recorded human of a replay), ``patient`` and ``margin`` (bool). A replay episode's robot acts from
     pi_R(s, psi(h)) and its human replays ``ah``; a patient one's human waits where the task's ``replay_hold`` says
     (it would let go of what the robot has not taken yet) and then goes on with its recording from where it
     stopped; an interpolation episode's co-policy acts for both agents with ``code``; all deterministic (action
     means), the episode frozen from its end on. An episode ends at a terminal state (success, failure) or at the
-    time limit, which a replay's human pushes back to ``replay_margin`` steps after its recording ended (its waits
-    included); the scan runs ``max(limit, eps["ah"].shape[1])`` steps (pad to ``replay_steps``). The environment
+    time limit, which a ``margin`` replay pushes back to ``replay_margin`` steps after its recording ended (its
+    waits included); the scan runs ``max(limit, eps["ah"].shape[1])`` steps (pad to ``replay_steps``). The environment
     steps once per time step for all P x E episodes on one flat axis, so the physics is traced (and compiled)
     once, under one vmap."""
     actor = nets["actor"].apply
@@ -139,6 +142,7 @@ def _episodes_fn(cfg: TrainConfig, env, nets):
         first = jax.vmap(env.reset_from)(eps["init"])
         state = jax.tree.map(lambda x: _flat(jnp.broadcast_to(x, (P,) + x.shape)), first)
         hist = jnp.repeat(state.obs[:, None], cfg.history + 1, 1)
+        late_ok = _flat(jnp.broadcast_to(eps["replay"] & eps["margin"], (P, E)))
         length = _flat(jnp.broadcast_to(jnp.where(eps["replay"], eps["length"], 0), (P, E)))
         never = jnp.iinfo(jnp.int32).max - margin
 
@@ -152,7 +156,7 @@ def _episodes_fn(cfg: TrainConfig, env, nets):
             t = nxt.info["t"]
             rec_end = jnp.minimum(rec_end, jnp.where(pos >= length, t, never))  # when the recording ran out
             terminal = (nxt.done > 0) & ~(nxt.info["truncation"] > 0)
-            timeout = (t >= Tenv) & (t >= rec_end + margin)
+            timeout = (t >= Tenv) & (~late_ok | (t >= rec_end + margin))
             hist = jnp.concatenate([hist[:, 1:], nxt.obs[:, None]], 1)
             return (jax.vmap(_freeze)(fin, state, nxt), hist, _flat(a_h), fin | terminal | timeout, pos,
                     rec_end), None
@@ -167,10 +171,12 @@ def _episodes_fn(cfg: TrainConfig, env, nets):
 
 
 def replay_episodes(episodes: dict, code_dim: int) -> dict:
-    """Replay episodes (``init``, ``ah``, ``length``, optional ``patient``) in the form ``_episodes_fn`` runs."""
+    """Replay episodes (``init``, ``ah``, ``length``, optional ``patient`` and ``margin``) in the form
+    ``_episodes_fn`` runs."""
     n = episodes["length"].shape[0]
     return {"init": episodes["init"], "ah": episodes["ah"], "length": episodes["length"],
             "patient": jnp.asarray(episodes.get("patient", jnp.zeros((n,), bool)), bool),
+            "margin": jnp.asarray(episodes.get("margin", jnp.zeros((n,), bool)), bool),
             "replay": jnp.ones((n,), bool), "code": jnp.zeros((n, code_dim), jnp.float32)}
 
 
@@ -183,7 +189,7 @@ def make_replay_fn(cfg: TrainConfig, env, nets):
     run = jax.jit(lambda params, norm, ep: episodes(params, norm, replay_episodes(ep, cfg.code_dim)))
 
     def replay(params, norm, ep):  # recordings padded to the steps the replays run (a host-side shape)
-        width = replay_steps(env, np.asarray(jax.device_get(ep["length"])))
+        width = replay_steps(env, np.asarray(jax.device_get(ep["length"])), ep.get("margin"))
         ah = ep["ah"]
         if ah.shape[1] < width:
             ah = jnp.concatenate([jnp.asarray(ah), jnp.zeros((ah.shape[0], width - ah.shape[1]) + ah.shape[2:],
@@ -221,7 +227,7 @@ def make_eval_fn(cfg: TrainConfig, env, nets):
         rp = replay_episodes(held, cfg.code_dim)
         T = rp["ah"].shape[1]
         interp = {"init": jax.vmap(env.sample_init)(jax.random.split(jax.random.PRNGKey(EVAL_SEED), n)),
-                  "replay": jnp.zeros((n,), bool), "patient": jnp.zeros((n,), bool),
+                  "replay": jnp.zeros((n,), bool), "patient": jnp.zeros((n,), bool), "margin": jnp.zeros((n,), bool),
                   "code": codes, "ah": jnp.zeros((n, T, env.human_action_size)), "length": jnp.zeros((n,), jnp.int32)}
         eps = jax.tree.map(lambda a, b: jnp.concatenate([a, b.astype(a.dtype)]), interp, rp)
         m = run(params, norm, eps)
@@ -234,12 +240,14 @@ def make_eval_fn(cfg: TrainConfig, env, nets):
     return jax.jit(evaluate)
 
 
-def heldout_arrays(demos, patient: bool = False) -> dict[str, np.ndarray]:
-    """A demonstration set as replay episodes; ``patient``: its humans wait for the robot (``_episodes_fn``)."""
+def heldout_arrays(demos, patient: bool = False, margin: bool = False) -> dict[str, np.ndarray]:
+    """A demonstration set as replay episodes; ``patient``: its humans wait for the robot; ``margin``: they may end
+    their recordings late (``_episodes_fn``)."""
     prev = np.zeros_like(demos.actions_human)
     prev[:, 1:] = demos.actions_human[:, :-1]
     return {"init": demos.init, "ah": demos.actions_human, "length": demos.length, "obs": demos.obs, "prev_ah": prev,
-            "strategy": demos.strategy, "patient": np.full(demos.length.shape, bool(patient))}
+            "strategy": demos.strategy, "patient": np.full(demos.length.shape, bool(patient)),
+            "margin": np.full(demos.length.shape, bool(margin))}
 
 
 def stack_sets(sets: dict[str, dict], steps: int = 0) -> tuple[dict[str, np.ndarray], dict[str, slice]]:
@@ -247,7 +255,7 @@ def stack_sets(sets: dict[str, dict], steps: int = 0) -> tuple[dict[str, np.ndar
     the env's ``max_episode_steps``, so that the shapes do not depend on the data) and concatenated along the
     episode axis, so that one compiled evaluation program serves them all (e.g. test and validation: they differ
     in data only). Returns the batch (without ``strategy``) and each set's slice of the episode axis."""
-    keys = ("init", "ah", "length", "obs", "prev_ah", "patient")
+    keys = ("init", "ah", "length", "obs", "prev_ah", "patient", "margin")
     T = max([int(steps)] + [int(v["ah"].shape[1]) for v in sets.values()])
     out, slices, i = {k: [] for k in keys}, {}, 0
     for name, v in sets.items():
@@ -509,9 +517,10 @@ def results_markdown(res: dict) -> str:
                   "| --- | --- | --- | --- |"]
         for name, e in res["extra_sets"].items():
             lines += extra_set_markdown(name, e)
-        lines += ["", f"A replay ends at the task's time limit, or {100 * REPLAY_MARGIN:.0f} % of it after the end of "
-                  "the human's recording where that is later: a slow or hesitant human's recording can run into the "
-                  "limit's last steps, and the clock would decide instead of the robot."]
+        lines += ["", f"An extra set's replay ends at the task's time limit, or {100 * REPLAY_MARGIN:.0f} % of it after "
+                  "the end of the human's recording where that is later: a slow or hesitant human's recording can run "
+                  "into the limit's last steps, and the clock would decide instead of the robot (the test and "
+                  "validation splits: the time limit, as in the paper)."]
         if any(name.startswith("patient-") for name in res["extra_sets"]):
             lines += ["", "patient-*: the same recordings replayed with a patient human, who does not let go of what "
                       "the robot has not taken yet but waits for it and then goes on with its recording; the plain "

@@ -370,9 +370,9 @@ def _checkpoint_params(mgr, abstract, memory: dict | None, step: int) -> dict:
     return eval_params(ckpt.restore(mgr, step, abstract))
 
 
-def _lengths(sets) -> np.ndarray:
-    """The recordings' lengths of episode sets (``heldout_arrays``), one array."""
-    return np.concatenate([np.asarray(e["length"]) for e in sets] or [np.zeros(0, int)])
+def _lengths(sets, key: str = "length") -> np.ndarray:
+    """One array of ``key`` (the recordings' lengths) over episode sets (``heldout_arrays``)."""
+    return np.concatenate([np.asarray(e[key]) for e in sets] or [np.zeros(0, int)])
 
 
 def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict) -> dict:
@@ -384,8 +384,9 @@ def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict) -> 
     eps = _extra_episodes(s, extra_sets)
     if not eps:
         return {}
-    batch, part = evaluate.stack_sets(eps, steps=evaluate.replay_steps(s.env, _lengths(eps.values())))
-    arrays = {k: batch[k] for k in ("init", "ah", "length", "patient")}
+    batch, part = evaluate.stack_sets(eps, steps=evaluate.replay_steps(s.env, _lengths(eps.values()),
+                                                                       _lengths(eps.values(), "margin")))
+    arrays = {k: batch[k] for k in ("init", "ah", "length", "patient", "margin")}
     succ = {key: np.asarray(jax.device_get(replay(states[st]["params"], states[st]["norm"], arrays))["success"])
             for key, st in cks.items()}
     return {name: evaluate.summarize_extra_set({key: x[:, part[name]] for key, x in succ.items()},
@@ -507,7 +508,8 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
         abstract = jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert))
         eps = _extra_episodes(s, sets)
         split_sets = {"test": s.heldout, "validation": s.validation, **{EXTRA + n: e for n, e in eps.items()}}
-        held, part = evaluate.stack_sets(split_sets, steps=evaluate.replay_steps(s.env, _lengths(split_sets.values())))
+        held, part = evaluate.stack_sets(split_sets, steps=evaluate.replay_steps(
+            s.env, _lengths(split_sets.values()), _lengths(split_sets.values(), "margin")))
         per_ckpt, codes = _evaluate_checkpoints(s, mgr, abstract, steps, held, part, ckpt_batch, progress, memory)
         if not per_ckpt:
             raise ckpt.nothing_restored(mgr, run_dir)
@@ -524,9 +526,11 @@ PATIENT = "patient-"  # an extra set replayed with a patient human (evaluate._ep
 
 
 def _extra_episodes(s: Setup, sets: dict[str, str]) -> dict[str, dict]:
-    """The extra sets' replay episodes; a set named ``patient-...`` is replayed with a patient human."""
+    """The extra sets' replay episodes (humans from outside the splits: with the replay margin); a set named
+    ``patient-...`` is replayed with a patient human."""
     return {name: evaluate.heldout_arrays(data.load_demos(path, s.env, require_init=True),
-                                          patient=name.startswith(PATIENT)) for name, path in sets.items()}
+                                          patient=name.startswith(PATIENT), margin=True)
+            for name, path in sets.items()}
 
 
 def _eval_setup(run_dir: Path, sets: dict[str, str], robustness: bool) -> tuple[Setup, dict[str, str]]:

@@ -109,15 +109,15 @@ def _episodes_fn(cfg: TrainConfig, env, nets):
     (``params`` / ``norm`` with a leading axis P: checkpoints x seeds), in one ``lax.scan`` over time.
 
     ``eps`` (leading axis E): ``init`` (initial conditions), ``replay`` (bool), ``code`` (the interpolation code),
-    ``ah`` / ``length`` (the recorded human of a replay), ``patient`` and ``margin`` (bool). A replay episode's robot acts from
-    pi_R(s, psi(h)) and its human replays ``ah``; a patient one's human waits where the task's ``replay_hold`` says
-    (it would let go of what the robot has not taken yet) and then goes on with its recording from where it
-    stopped; an interpolation episode's co-policy acts for both agents with ``code``; all deterministic (action
+    ``ah`` / ``length`` (the recorded human of a replay), ``patient`` and ``margin`` (bool). A replay episode's robot
+    acts from pi_R(s, psi(h)) and its human replays ``ah``; a patient one's human waits where the task's
+    ``replay_hold`` says (it would let go of what the robot has not taken yet) and then goes on with its recording
+    from where it stopped; an interpolation episode's co-policy acts for both agents with ``code``; all deterministic (action
     means), the episode frozen from its end on. An episode ends at a terminal state (success, failure) or at the
     time limit, which a ``margin`` replay pushes back to ``replay_margin`` steps after its recording ended (its
-    waits included); the scan runs ``max(limit, eps["ah"].shape[1])`` steps (pad to ``replay_steps``). The environment
-    steps once per time step for all P x E episodes on one flat axis, so the physics is traced (and compiled)
-    once, under one vmap."""
+    waits included); the scan runs ``max(limit, eps["ah"].shape[1])`` steps (pad to ``replay_steps``). The
+    environment steps once per time step for all P x E episodes on one flat axis, so the physics is traced (and
+    compiled) once, under one vmap."""
     actor = nets["actor"].apply
     Ah, Tenv, margin = env.human_action_size, env.max_episode_steps, replay_margin(env)
     psi_code, _ = make_robot_step(cfg, env, nets)
@@ -517,9 +517,9 @@ def results_markdown(res: dict) -> str:
                   "| --- | --- | --- | --- |"]
         for name, e in res["extra_sets"].items():
             lines += extra_set_markdown(name, e)
-        lines += ["", f"An extra set's replay ends at the task's time limit, or {100 * REPLAY_MARGIN:.0f} % of it after "
-                  "the end of the human's recording where that is later: a slow or hesitant human's recording can run "
-                  "into the limit's last steps, and the clock would decide instead of the robot (the test and "
+        lines += ["", f"An extra set's replay ends at the task's time limit, or {100 * REPLAY_MARGIN:.0f} % of it "
+                  "after the end of the human's recording where that is later: a slow or hesitant human's recording "
+                  "can run into the limit's last steps, and the clock would decide instead of the robot (the test and "
                   "validation splits: the time limit, as in the paper)."]
         if any(name.startswith("patient-") for name in res["extra_sets"]):
             lines += ["", "patient-*: the same recordings replayed with a patient human, who does not let go of what "

@@ -96,7 +96,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--replay-file", action="append", default=[], metavar="FILE.hdf5",
                    help="an extra test set (e.g. the trials `cogail play` recorded, an imported file): replayed at "
                         "the checkpoint selected on validation and at the paper-protocol replay checkpoint; results "
-                        "in results.json's extra_sets and in RUN/replay-<file name>/ (repeatable)")
+                        "in results.json's extra_sets and in RUN/replay-<file name>/ (repeatable). An extra set's "
+                        "replay lasts until the time limit or 20 %% of it past the end of each recording, whichever "
+                        "is later (the test and validation splits: the limit)")
     e.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
                    help="also replay against varied humans (pace, pauses, path, noise, a change of mind; cached in "
                         "the data folder): results.json's extra_sets robust-<variation>, RUN/robustness.png, "

@@ -35,6 +35,9 @@ class TrainConfig:
     total_steps: int = 6_000_000  # env steps per seed
     num_envs: int = 64
     unroll_length: int = 94  # num_envs * unroll_length env steps per update (~6000, the paper's buffer)
+    # the rollout's, GAE's and the return normaliser's scans over the unroll, unrolled by this factor: fewer loop
+    # iterations, each doing more (fetchq: 2, its update 13 % faster on an H100; BENCHMARKS.md)
+    scan_unroll: int = 1
     updates_per_call: int = 10  # updates fused into one jitted call (lax.scan)
     # how the seed axis runs on several devices (--devices): "shard_map" (one SPMD program), "per_device" (the
     # one-device program on each device, from threads) or "auto" (per_device for the MJX tasks, whose 2-device
@@ -147,7 +150,7 @@ class TrainConfig:
             raise ConfigError(f"unknown method {self.method!r}: choose one of {', '.join(METHODS)}")
         if not self.seeds:
             raise ConfigError("no seeds given: pass --seeds, e.g. --seeds 300,400,500")
-        for name in ("total_steps", "num_envs", "unroll_length", "updates_per_call", "checkpoint_every",
+        for name in ("total_steps", "num_envs", "unroll_length", "scan_unroll", "updates_per_call", "checkpoint_every",
                      "ppo_epochs", "num_minibatches", "inner_updates", "inner_batch", "eval_codes"):
             if getattr(self, name) <= 0:
                 raise ConfigError(f"{name.replace('_', '-')} must be positive, got {getattr(self, name)}")

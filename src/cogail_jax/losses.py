@@ -17,7 +17,7 @@ from .config import METHODS, TrainConfig
 from .networks import gaussian_entropy, gaussian_log_prob
 
 
-def gae(rewards, values, dones, truncations, final_values, last_value, gamma, lam):
+def gae(rewards, values, dones, truncations, final_values, last_value, gamma, lam, unroll=1):
     """Generalised advantage estimation over a (T, N) rollout.
 
     ``dones[t]`` ends the episode after step t; ``truncations[t]`` says it ended by the time limit, not by
@@ -35,7 +35,7 @@ def gae(rewards, values, dones, truncations, final_values, last_value, gamma, la
         return (adv, v), adv
 
     xs = (rewards, values, dones, truncations, final_values)
-    _, adv = jax.lax.scan(body, (jnp.zeros_like(last_value), last_value), xs, reverse=True)
+    _, adv = jax.lax.scan(body, (jnp.zeros_like(last_value), last_value), xs, reverse=True, unroll=unroll)
     return adv, adv + values
 
 

@@ -92,7 +92,7 @@ def rollout(cfg: TrainConfig, env, actor, critic, params, norm, carry: Carry, ke
                   pick(jnp.zeros((n, ah)), act[:, :ah]), counter)
         return c, tr
 
-    carry, traj = jax.lax.scan(body, carry, jax.random.split(key, cfg.unroll_length))
+    carry, traj = jax.lax.scan(body, carry, jax.random.split(key, cfg.unroll_length), unroll=cfg.scan_unroll)
     # the critic's value of a timed-out episode's last observation (the auto-reset replaced it in the carry)
     final_obs = normalize(norm, traj.pop("next_obs"))
     traj["final_value"] = jnp.where(traj["truncation"] > 0, critic(params["critic"], final_obs, traj["z"]), 0.0)

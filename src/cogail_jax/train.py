@@ -248,7 +248,7 @@ def normalize_returns(cfg: TrainConfig, ret_rms, ret_acc, r, done):
         ret = ret * cfg.gamma + r_t
         return ret * (1 - d_t), ret
 
-    ret_acc, rets = jax.lax.scan(body, ret_acc, (r, done))
+    ret_acc, rets = jax.lax.scan(body, ret_acc, (r, done), unroll=cfg.scan_unroll)
     b_mean, b_var, b_count = rets.mean(), rets.var(), rets.size
     delta = b_mean - ret_rms["mean"]
     tot = ret_rms["count"] + b_count
@@ -350,7 +350,7 @@ def train_step(ctx: Context, state: TrainState, expert):
     state, inner_m = inner_updates(ctx, state, flat, expert, k_inner)
     state, r_norm, r_raw = rewards(ctx, state, traj)
     adv, ret = losses.gae(r_norm, traj["value"], traj["done"], traj["truncation"], traj["final_value"], last_value,
-                          cfg.gamma, cfg.gae_lambda)
+                          cfg.gamma, cfg.gae_lambda, cfg.scan_unroll)
     state, ppo_m = ppo_update(ctx, state, traj, adv, ret, k_ppo, expert)
     episodes = traj["done"].sum()
     metrics = {**inner_m, **ppo_m, "reward": r_raw.mean(), "episodes": episodes,

@@ -108,6 +108,23 @@ def test_seed_vmap_equals_single_seed_run(setup, tiny_cfg, fetchq):
         np.testing.assert_allclose(x, y, rtol=2e-5, atol=2e-6)
 
 
+def test_scan_unroll_gives_the_same_update(setup, tiny_cfg, fetchq):
+    """scan_unroll (the rollout's, GAE's and the return normaliser's scans unrolled) changes the program, not the
+    update: 3 does not divide the unroll (16), so the scans' remainder steps are covered too."""
+    from cogail_jax.config import ConfigError
+
+    init, chunk, expert = setup
+    ref, m_ref = chunk(init(tiny_cfg.seeds, expert), expert)
+    cfg = tiny_cfg.replace(scan_unroll=3)
+    init3, chunk3, _ = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
+    got, m_got = chunk3(init3(cfg.seeds, expert), expert)
+    for x, y in zip(jax.tree.leaves(jax.device_get(got.params)), jax.tree.leaves(jax.device_get(ref.params))):
+        np.testing.assert_allclose(x, y, rtol=2e-5, atol=2e-6)
+    np.testing.assert_allclose(np.asarray(m_got["approx_kl"]), np.asarray(m_ref["approx_kl"]), rtol=1e-4, atol=1e-7)
+    with pytest.raises(ConfigError, match="scan-unroll"):
+        tiny_cfg.replace(scan_unroll=0).validate()
+
+
 def _final_params(run_dir, cfg):
     s = trainer.build(cfg, need_heldout=False)
     mgr = ckpt.manager(run_dir)

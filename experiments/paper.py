@@ -11,7 +11,10 @@ new default) trains a new run. Every checkpoint is evaluated (``cogail eval``'s 
 holds each run's results (keyed task/method/mixture, with the config hash). Every cell of the tables gives the
 checkpoint selected on the validation split reported on the test split, the paper's protocol (max over
 checkpoints of the mean over seeds, on test) and the paper's number: ``<out>/table1_replay.md``,
-``<out>/table2_interpolation.md``, ``<out>/fig3_strategies.{md,png}``. ``--readme FILE`` rewrites the block
+``<out>/table2_interpolation.md``, ``<out>/fig3_strategies.{md,png}``. Varied humans of the test split (``robust-*``) go
+to ``<out>/robustness.md``; those drawn from the validation split (``val-robust-*``; with a patient human too on the
+MJX tasks, ``patient-val-robust-*`` beside ``patient-validation``), for every run and ``--label`` variant, to
+``<out>/robustness_validation.md``: choose variants there. ``--readme FILE`` rewrites the block
 between ``<!-- results:begin -->`` and ``<!-- results:end -->`` in FILE with the same tables; ``--tables-only``
 trains nothing and only rewrites the tables (and the README block) from ``<out>/paper.json``.
 
@@ -73,8 +76,16 @@ def validation_robustness_sets(task, mix) -> dict:
     import cogail_envs
     from cogail_jax import robustness
 
-    sets = robustness.ensure_robustness_sets(cogail_envs.make_env(task), mix=mix, split="validation")
-    return {"val-" + name: str(path) for name, path in sets.items()}
+    from cogail_jax.data import ensure_default_demos
+    from cogail_jax.trainer import PATIENT
+
+    env = cogail_envs.make_env(task)
+    sets = {"val-" + name: str(path)
+            for name, path in robustness.ensure_robustness_sets(env, mix=mix, split="validation").items()}
+    if env.has_patient_replay:  # and with a patient human, as the test's (choices on the patient protocol)
+        sets.update({PATIENT + name: path for name, path in sets.items()})
+        sets[PATIENT + "validation"] = str(ensure_default_demos(env, "validation", mix))
+    return sets
 
 
 def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1,
@@ -234,10 +245,22 @@ def _pct(d) -> str:
     return f"{100 * d['mean']:.1f}" if d else "-"
 
 
-def robustness_rows(results: dict, tasks, methods, prefix: str = "robust-", base: str | None = None) -> list[str]:
+def _in_distribution(r: dict, base: str | None):
+    """The in-distribution replay at the selected checkpoint: the test split's (``base`` None), the validation
+    split's (``"validation"``) or an extra set's."""
+    if base is None:
+        return r["selected"]["replay"]
+    if base == "validation":
+        return r["selected"].get("validation_replay")
+    return ((r.get("extra_sets") or {}).get(base) or {}).get("selected")
+
+
+def robustness_rows(results: dict, tasks, methods, prefix: str = "robust-", base: str | None = None,
+                    keys=None) -> list[str]:
     """Replay success against varied humans at the selected checkpoint, next to in-distribution replay there.
-    ``prefix``: the varied-human sets (``patient-robust-``: replayed with a patient human); ``base``: the extra set
-    whose replay is the in-distribution figure (None: the test split's replay)."""
+    ``prefix``: the varied-human sets (``patient-robust-``: replayed with a patient human; ``val-robust-``: drawn
+    from the validation split); ``base``: the in-distribution figure (``_in_distribution``). ``keys``: the results
+    to tabulate, one row each named by its key (default: every method of ``tasks`` and the shipped settings)."""
     var = []
     for r in results.values():
         var += [k for k in (r.get("extra_sets") or {}) if k.startswith(prefix) and k not in var]
@@ -245,13 +268,17 @@ def robustness_rows(results: dict, tasks, methods, prefix: str = "robust-", base
         return []
     lines = ["| task | method | in-distribution | " + " | ".join(v[len(prefix):] for v in var)
              + " | worst / in-distribution |", "| --- | --- | --- |" + " --- |" * (len(var) + 1)]
-    rows = [(t, m, f"{t}/{m}/uniform") for t in tasks for m in methods]
-    rows += [(t, f"cogail ({SHIPPED[t]})", f"{t}/cogail/uniform/{SHIPPED[t]}") for t in tasks if t in SHIPPED]
-    for t, m, key in sorted(rows, key=lambda x: tasks.index(x[0])):
+    if keys is None:
+        rows = [(t, m, f"{t}/{m}/uniform") for t in tasks for m in methods]
+        rows += [(t, f"cogail ({SHIPPED[t]})", f"{t}/cogail/uniform/{SHIPPED[t]}") for t in tasks if t in SHIPPED]
+        rows.sort(key=lambda x: tasks.index(x[0]))
+    else:
+        rows = [(k.split("/")[0], "/".join(k.split("/")[1:]), k) for k in keys]
+    for t, m, key in rows:
         r = results.get(key)
         if not r or not r.get("selected") or m == "bc_single":
             continue
-        ind = r["selected"]["replay"] if base is None else ((r.get("extra_sets") or {}).get(base) or {}).get("selected")
+        ind = _in_distribution(r, base)
         if not ind:
             continue
         vs = [((r.get("extra_sets") or {}).get(v) or {}).get("selected") for v in var]
@@ -320,6 +347,15 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
             f.write("\n## With a patient human\n\nThe same recordings, the human waiting for the robot to take what it "
                     "hands over instead of letting go on its recorded time (handover, seqmanip; in-distribution: the test "
                     "split replayed so):\n\n" + "\n".join(patient) + "\n")
+    val_rows = [robustness_rows(results, [], [], pre, b, keys=sorted(results))
+                for pre, b in (("val-robust-", "validation"), ("patient-val-robust-", "patient-validation"))]
+    if any(val_rows):  # every run, the variants' too: their choices are made on these
+        text = ["# Replay against varied validation humans (%, selected checkpoint, validation)", "",
+                "Every run and variant (task/method/mix[/label]); variants are chosen on these, not on test.", ""]
+        for title, rows in zip(("Plain replay", "With a patient human (in-distribution: the validation split so)"),
+                               val_rows):
+            text += [f"## {title}", "", *rows, ""] if rows else []
+        (out / "robustness_validation.md").write_text("\n".join(text))
     (out / "table1_replay.md").write_text("# Table 1: replay success (%)\n\n" + PROTOCOL_NOTE + "\n\n"
                                           + "\n".join(t1) + "\n")
     (out / "table2_interpolation.md").write_text("# Table 2: interpolation success (%)\n\n" + PROTOCOL_NOTE

@@ -180,6 +180,27 @@ def test_robustness_with_a_patient_human_has_its_own_table(tmp_path):
     assert "| handover | cogail | 90.0 | 81.0 | 0.90 |" in patient
 
 
+def test_variants_are_compared_on_the_validation_humans(tmp_path):
+    """Every run and variant gets a row of the validation varied humans (plain and with a patient human), whose
+    in-distribution figure is the validation split's replay at the selected checkpoint: the basis of a choice."""
+    def sets(slow, p_val, p_slow):
+        return {"val-robust-slow": {"selected": _s(slow)}, "val-robust-fast": {"selected": _s(0.45)},
+                "patient-validation": {"selected": _s(p_val)}, "patient-val-robust-slow": {"selected": _s(p_slow)},
+                "patient-val-robust-fast": {"selected": _s(p_val)}, "robust-slow": {"selected": _s(0.1)}}
+    results = {"handover/cogail/uniform": {**_res(0.6, 0.5), "extra_sets": sets(0.4, 0.9, 0.72)},
+               "handover/cogail/uniform/more": {**_res(0.6, 0.5), "extra_sets": sets(0.3, 0.8, 0.76)}}
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "paper.json").write_text(json.dumps(results))
+    assert paper.main(["--out", str(out), "--tables-only"]) == 0
+    plain, patient = (out / "robustness_validation.md").read_text().split("## With a patient human")
+    assert "| handover | cogail/uniform | 50.0 | 40.0 | 45.0 | 0.80 |" in plain
+    assert "| handover | cogail/uniform/more | 50.0 | 30.0 | 45.0 | 0.60 |" in plain
+    assert "| handover | cogail/uniform | 90.0 | 72.0 | 90.0 | 0.80 |" in patient
+    assert "| handover | cogail/uniform/more | 80.0 | 76.0 | 80.0 | 0.95 |" in patient
+    assert "val-" not in (out / "robustness.md").read_text()
+
+
 def test_shipped_labels_match_the_task_configs():
     """SHIPPED names, per task, the variant with experiments/<task>_paper.json's settings: keep them in step."""
     root = Path(__file__).parents[1] / "experiments"

@@ -58,6 +58,8 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
+from .segment_sums import gathered_segment_sums
+
 __all__ = [
     "N_GRIPPER_ACT", "N_SUBSTEPS", "TIMESTEP", "ITERATIONS", "LS_ITERATIONS", "FINGER_CONDIM",
     "POS_SCALE", "ROT_SCALE", "MAX_GAP",
@@ -334,13 +336,15 @@ def physics_step(mx: mjx.Model, d: mjx.Data, ctrl: jax.Array, n_substeps: int = 
     """Set ``ctrl`` and advance ``n_substeps`` x ``mjx.step`` (lax.scan).
 
     Matrix products are traced at full float32 precision: on NVIDIA GPUs XLA otherwise runs float32 matmuls in
-    TF32, and the Newton solver's Hessian / Cholesky in TF32 occasionally produced NaN states on the H200."""
+    TF32, and the Newton solver's Hessian / Cholesky in TF32 occasionally produced NaN states on the H200.
+    MJX's sums over the kinematic tree are traced as gathers (``segment_sums``): as scatter-adds, deterministic
+    GPU execution runs them as serial loops."""
     d = d.replace(ctrl=ctrl)
 
     def body(dd, _):
         return mjx.step(mx, dd), None
 
-    with jax.default_matmul_precision("highest"):
+    with jax.default_matmul_precision("highest"), gathered_segment_sums():
         d, _ = jax.lax.scan(body, d, None, length=n_substeps)
     return d
 
@@ -367,7 +371,8 @@ def guarded_physics_step(mx: mjx.Model, d: mjx.Data, ctrl: jax.Array,
 def make_data(m: mujoco.MjModel, mx: mjx.Model, qpos: jax.Array, ctrl: jax.Array, template: mjx.Data) -> mjx.Data:
     """A fresh ``mjx.Data`` at ``qpos`` (zero velocity) with ``ctrl``, after ``mjx.forward``."""
     d = template.replace(qpos=qpos, qvel=jnp.zeros_like(template.qvel), ctrl=ctrl)
-    return mjx.forward(mx, d)
+    with gathered_segment_sums():
+        return mjx.forward(mx, d)
 
 
 def rot6d(mat: jax.Array) -> jax.Array:

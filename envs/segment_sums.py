@@ -3,11 +3,12 @@
 MJX sums quantities from child bodies into their parents with ``jax.ops.segment_sum(x, ids, n)``, where
 ``ids`` is a numpy array fixed by the model. That is a scatter-add with repeated indices, and with
 deterministic GPU execution (``--xla_gpu_deterministic_ops``, the default of every ``cogail`` command) XLA
-runs each such scatter as a serial loop over its indices: on HR-Handover's paper layout (H100) an update took 287
-ms with them, 214 ms with the gathers below, and 191 ms without deterministic execution. :func:`static_segment_sum` computes the same sums with gathers and additions in
-the order of the ids (segment ``s`` is ``((0 + x[i0]) + x[i1]) + ...`` over its members ``i0 < i1 < ...``),
-which is deterministic without any scatter. :func:`gathered_segment_sums` routes ``jax.ops.segment_sum``
-calls with static ids to it while a function is traced.
+runs each such scatter as a serial loop over its indices: on HR-Handover's paper layout (H100) an update took
+287 ms with them, 214 ms with the gathers below, and 191 ms without deterministic execution.
+:func:`static_segment_sum` computes the same sums with gathers and additions in the order of the ids (segment
+``s`` is ``((0 + x[i0]) + x[i1]) + ...`` over its members ``i0 < i1 < ...``), which is deterministic without
+any scatter. :func:`gathered_segment_sums` routes ``jax.ops.segment_sum`` calls with static ids to it while a
+function is traced.
 """
 from __future__ import annotations
 

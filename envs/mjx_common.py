@@ -340,13 +340,31 @@ def physics_step(mx: mjx.Model, d: mjx.Data, ctrl: jax.Array, n_substeps: int = 
     MJX's sums over the kinematic tree are traced as gathers (``segment_sums``): as scatter-adds, deterministic
     GPU execution runs them as serial loops."""
     d = d.replace(ctrl=ctrl)
+    forward = shared_forward(mx)
 
-    def body(dd, _):
-        return mjx.step(mx, dd), None
+    def body(dd, _):  # mjx.step with the scene's Euler integrator (``scene_xml``)
+        return mjx.euler(mx, forward(dd)), None
 
     with jax.default_matmul_precision("highest"), gathered_segment_sums():
         d, _ = jax.lax.scan(body, d, None, length=n_substeps)
     return d
+
+
+_FORWARD: dict[int, tuple[mjx.Model, object]] = {}
+
+
+def shared_forward(mx: mjx.Model):
+    """``mjx.forward(mx, .)`` (tree sums as gathers) as one jitted function per model, shared by every program of
+    the process: JAX traces it once per matmul precision and shape, where a plain call is traced again at every
+    call site (a task's reset and step, in the training program, the evaluation's and the demonstrations'), each
+    time under every vmap around it. XLA inlines it: the compiled programs compute the same numbers."""
+    if id(mx) not in _FORWARD:
+        def forward(d):
+            with gathered_segment_sums():
+                return mjx.forward(mx, d)
+
+        _FORWARD[id(mx)] = (mx, jax.jit(forward))  # the model kept alive: its id is not reused
+    return _FORWARD[id(mx)][1]
 
 
 # Joint speeds (m/s or rad/s) above this are a diverging simulation, not motion: the grippers move at most
@@ -371,8 +389,7 @@ def guarded_physics_step(mx: mjx.Model, d: mjx.Data, ctrl: jax.Array,
 def make_data(m: mujoco.MjModel, mx: mjx.Model, qpos: jax.Array, ctrl: jax.Array, template: mjx.Data) -> mjx.Data:
     """A fresh ``mjx.Data`` at ``qpos`` (zero velocity) with ``ctrl``, after ``mjx.forward``."""
     d = template.replace(qpos=qpos, qvel=jnp.zeros_like(template.qvel), ctrl=ctrl)
-    with gathered_segment_sums():
-        return mjx.forward(mx, d)
+    return shared_forward(mx)(d)
 
 
 def rot6d(mat: jax.Array) -> jax.Array:

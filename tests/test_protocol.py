@@ -182,7 +182,7 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     assert e["selected"]["per_seed"] == sel["replay"]["per_seed"]
     assert e["paper_protocol"]["checkpoint"] == pp["replay"]["checkpoint"]
     assert e["paper_protocol"]["per_seed"] == pp["replay"]["per_seed"]
-    assert e["curve"] == res["curves"]["replay_success"]  # every checkpoint, every seed
+    assert "curve" not in e  # replayed at the reported checkpoints only (the default)
     saved = json.loads((run / "results.json").read_text())
     assert list(saved)[:4] == ["task", "method", "seeds", "checkpoints"] and "extra_sets" in saved
     own = json.loads((run / "replay-again" / "results.json").read_text())
@@ -203,10 +203,15 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     monkeypatch.undo()
     # checkpoints two at a time in one device program (vmapped over stacked parameters; the second group padded):
     # the same figures as one checkpoint at a time
-    again = trainer.eval_run(run, progress=False, ckpt_batch=2)
+    # with extra_curves the extra sets ride in that program's batch at every checkpoint: a curve per set, and the
+    # reported figures those of the default evaluation (the extra sets' too)
+    again = trainer.eval_run(run, progress=False, ckpt_batch=2, extra_curves=True)
     for key in ("replay_success", "validation_replay_success", "interpolation_success"):
         assert again["curves"][key] == res["curves"][key], key
     assert again["selected"] == sel and again["paper_protocol"] == pp
+    assert again["extra_sets"]["again"]["curve"] == res["curves"]["replay_success"]  # every checkpoint and seed
+    for key in ("selected", "paper_protocol"):
+        assert again["extra_sets"]["again"][key] == res["extra_sets"]["again"][key], key
     np.testing.assert_allclose(again["latent_map"]["codes"], res["latent_map"]["codes"], rtol=1e-5, atol=1e-6)
     assert set(again["extra_sets"]) == {"again", "val-again"}  # earlier extra sets are evaluated again
     # ... stacked into one replay batch (4 and 6 episodes, padded to the episode limit): each set's figures are

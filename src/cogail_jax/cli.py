@@ -35,6 +35,12 @@ def _positive(text: str) -> int:
     return v
 
 
+EXTRA_CURVES_HELP = ("replay the extra sets and varied humans at every checkpoint, not only at the reported ones: "
+                     "each set's replay success per checkpoint in results.json (extra_sets.<name>.curve) and "
+                     "RUN/robustness_curves.png; the reported figures are the same, the evaluation several times "
+                     "longer")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .config import METHODS, TASK_NAMES
 
@@ -80,10 +86,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--eval", action="store_true", help="evaluate every checkpoint when training ends")
     t.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
                    help="with --eval: also replay against varied humans (pace, pauses, path, noise, a change of "
-                        "mind; cached in the data folder); results in results.json's extra_sets, RUN/robustness.png "
-                        "and RUN/robustness_curves.png (per checkpoint); on handover and seqmanip also the test split and "
+                        "mind; cached in the data folder), at the reported checkpoints; results in results.json's extra_sets "
+                        "and RUN/robustness.png; on handover and seqmanip also the test split and "
                         "the varied humans replayed with a patient human (patient-*: at a handover it waits for the "
                         "robot to take the object)")
+    t.add_argument("--extra-curves", action="store_true", help=EXTRA_CURVES_HELP)
     t.add_argument("--devices", default=None,
                    help="shard the seed axis over N devices or 'all' (one program; seeds must split evenly)")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -104,9 +111,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "is later (the test and validation splits: the limit)")
     e.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
                    help="also replay against varied humans (pace, pauses, path, noise, a change of mind; cached in "
-                        "the data folder): results.json's extra_sets robust-<variation>, RUN/robustness.png, "
-                        "RUN/robustness_curves.png (per checkpoint); on handover and seqmanip also patient-test and "
+                        "the data folder), at the reported checkpoints: results.json's extra_sets robust-<variation>, "
+                        "RUN/robustness.png; on handover and seqmanip also patient-test and "
                         "patient-robust-<variation>: the same humans waiting at a handover for the robot")
+    e.add_argument("--extra-curves", action="store_true", help=EXTRA_CURVES_HELP)
     e.add_argument("--extra-set", action="append", default=[], metavar="NAME=FILE.hdf5",
                    help="like --replay-file, under the name NAME (repeatable); a NAME starting with patient- is "
                         "replayed with a patient human where the task has one (handover, seqmanip)")
@@ -331,7 +339,8 @@ def _dispatch(a) -> int:
                         keep=kept if a.eval else None)
         print(f"trained: {run}")
         if a.eval:
-            res = eval_run(run, progress=not a.no_progress, robustness=a.robustness, memory=kept)
+            res = eval_run(run, progress=not a.no_progress, robustness=a.robustness, memory=kept,
+                           extra_curves=a.extra_curves)
             print((Path(run) / "results.md").read_text())
             del res
         return 0
@@ -349,7 +358,7 @@ def _dispatch(a) -> int:
             eval_extra_sets(a.run, sets)  # the checkpoints are chosen already: replay the extra sets only
         else:
             eval_run(a.run, progress=not a.no_progress, every=a.every, extra_sets=sets, ckpt_batch=a.ckpt_batch,
-                     robustness=a.robustness)
+                     robustness=a.robustness, extra_curves=a.extra_curves)
         print((Path(a.run) / "results.md").read_text())
         for name, f in sets.items():
             out = replay_results_dir(a.run, name)

@@ -375,13 +375,15 @@ def _lengths(sets, key: str = "length") -> np.ndarray:
     return np.concatenate([np.asarray(e[key]) for e in sets] or [np.zeros(0, int)])
 
 
-def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict) -> dict:
+def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict, memory: dict | None = None,
+                       eps: dict | None = None) -> dict:
     """Replay each extra set at the selected and the paper-protocol replay checkpoints: all sets stacked into one
-    batch (one compiled replay program, one call per checkpoint); returns {name: evaluate.summarize_extra_set(...)}."""
+    batch (one compiled replay program, one call per checkpoint); returns {name: evaluate.summarize_extra_set(...)}.
+    ``memory``: checkpoints kept by the training loop (``eval_run``); ``eps``: the sets' episodes, if read already."""
     replay = evaluate.make_replay_fn(s.cfg, s.env, s.nets)
     cks = _extra_set_checkpoints(res)
-    states = {st: _checkpoint_params(mgr, abstract, None, st) for st in sorted(set(cks.values()))}
-    eps = _extra_episodes(s, extra_sets)
+    states = {st: _checkpoint_params(mgr, abstract, memory, st) for st in sorted(set(cks.values()))}
+    eps = _extra_episodes(s, extra_sets) if eps is None else eps
     if not eps:
         return {}
     batch, part = evaluate.stack_sets(eps, steps=evaluate.replay_steps(s.env, _lengths(eps.values()),
@@ -467,7 +469,7 @@ def eval_extra_sets(run_dir: str | Path, extra_sets: dict[str, str | Path]) -> d
 
 def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_file: str | Path | None = None,
              extra_sets: dict[str, str | Path] | None = None, ckpt_batch: int | None = None,
-             robustness: bool = False, memory: dict | None = None) -> dict:
+             robustness: bool = False, memory: dict | None = None, extra_curves: bool = False) -> dict:
     """Evaluate every checkpoint of a run; write results.json / results.md and figures into the run dir.
 
     Every checkpoint and seed is evaluated on the test split (replay, interpolation, latent codes) and on the
@@ -475,10 +477,13 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     selected on validation, last).
 
     ``extra_sets``: {name: demonstration file}: further test sets (recorded trials, imported files, varied human
-    trajectories, one file per variation), reported at the selected checkpoint and at the paper-protocol replay
-    checkpoint; results in results.json's ``extra_sets[name]`` and in RUN/replay-<name>/results.{json,md}.
+    trajectories, one file per variation), replayed and reported at the selected checkpoint and at the
+    paper-protocol replay checkpoint (one compiled replay program, ``_replay_extra_sets``); results in
+    results.json's ``extra_sets[name]`` and in RUN/replay-<name>/results.{json,md}. ``extra_curves``: replay them
+    at every checkpoint instead, in the batch of the test and validation splits, and add each set's ``curve``
+    (and RUN/robustness_curves.png); the reported figures are the same, for several times the evaluation's work.
 
-    The interpolation rollouts and the replays of the test, validation and extra sets run as one batch of one
+    The interpolation rollouts and the replays of the test and validation splits run as one batch of one
     compiled program (``evaluate.make_eval_fn``), at every checkpoint.
     ``replay_file``: one more extra set, named after the file's stem. To add sets to a run evaluated already,
     ``eval_extra_sets`` skips the evaluation of every checkpoint.
@@ -507,15 +512,18 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
             raise RunError(f"{run_dir} has no checkpoints yet: train it first")
         abstract = jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert))
         eps = _extra_episodes(s, sets)
-        split_sets = {"test": s.heldout, "validation": s.validation, **{EXTRA + n: e for n, e in eps.items()}}
+        split_sets = {"test": s.heldout, "validation": s.validation,
+                      **{EXTRA + n: e for n, e in eps.items() if extra_curves}}
         held, part = evaluate.stack_sets(split_sets, steps=evaluate.replay_steps(
             s.env, _lengths(split_sets.values()), _lengths(split_sets.values(), "margin")))
         per_ckpt, codes = _evaluate_checkpoints(s, mgr, abstract, steps, held, part, ckpt_batch, progress, memory)
         if not per_ckpt:
             raise ckpt.nothing_restored(mgr, run_dir)
         res, at, lat = _summarize(s, per_ckpt, codes, part)
-        if sets:
+        if sets and extra_curves:
             res["extra_sets"] = _extra_sets_results(s, per_ckpt, res, eps, sets)
+        elif sets:
+            res["extra_sets"] = _replay_extra_sets(s, mgr, abstract, res, sets, memory, eps)
     with clock("write"):
         _write_eval_outputs(run_dir, s, res, at, lat, sets, robustness)
     timing.write(run_dir, timing.merge_eval(timing.read(run_dir), clock, **timing.device_info()))
@@ -638,8 +646,10 @@ def _write_eval_outputs(out_dir: Path, s: Setup, res: dict, at: dict, lat, sets:
         from . import robustness as rb
 
         rb.robustness_figure(res, out_dir / "robustness.png", title=f"{cfg.method} on {cfg.task}: varied humans")
-        rb.robustness_curve_figure(res, out_dir / "robustness_curves.png",
-                                   title=f"{cfg.method} on {cfg.task}: varied humans per checkpoint")
+        curves = out_dir / "robustness_curves.png"
+        if rb.robustness_curve_figure(res, curves, title=f"{cfg.method} on {cfg.task}: varied humans per "
+                                      "checkpoint") is None:
+            curves.unlink(missing_ok=True)  # an earlier evaluation's (with extra_curves): not these results
     if "handover_x" in at["interp_metrics"]:  # HR-Handover: where the handovers happened (paper Fig. 4a)
         im = {k: at["interp_metrics"][k] for k in ("handover_x", "handover_y", "handover_z")}
         evaluate.write_handover_spots(out_dir, res, im, at["interp_success"], s.train_metrics)

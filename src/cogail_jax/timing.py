@@ -9,7 +9,8 @@ Phases, in seconds (``PHASES``):
 * ``compile``: the first training call minus a steady-state call (the median of the later calls; the whole first
   call when there is only one);
 * ``train``: the rest of the training loop (rollouts, updates, logs, checkpoints);
-* ``eval``: evaluating the checkpoints (the test and validation splits loaded, the varied humans made);
+* ``eval``: evaluating the checkpoints (the test and validation splits loaded, the varied humans made); its parts
+  are in ``eval_parts`` (``EVAL_PARTS``);
 * ``write``: writing results.json / results.md and the figures.
 
 ``total`` is the wall-clock of the commands (set-up included, so a little more than the phases' sum). A resumed
@@ -28,6 +29,8 @@ from typing import Iterator
 PHASES = ("start", "demos", "bc", "compile", "train", "eval", "write")
 TRAIN_PHASES = ("start", "demos", "bc", "compile", "train")
 EVAL_PHASES = ("eval", "write")
+EVAL_PARTS = ("setup", "checkpoints", "extra_sets")  # the set-up (splits, varied humans); every checkpoint's
+# program (interpolation, test, validation; tracing and compilation included); the extra sets' replays
 FILE = "speed.json"
 
 
@@ -120,12 +123,14 @@ def merge_train(old: dict, clock: Phases, steady_steps: int, steady_seconds: flo
     return _finish(rec)
 
 
-def merge_eval(old: dict, clock: Phases, **info) -> dict:
-    """The record after an evaluation: ``clock``'s eval and write phases replace ``old``'s."""
+def merge_eval(old: dict, clock: Phases, parts: Phases | None = None, **info) -> dict:
+    """The record after an evaluation: ``clock``'s eval and write phases (and ``parts``' ``EVAL_PARTS`` of the eval
+    phase) replace ``old``'s."""
     rec = dict(old)
     phases = dict(rec.get("phases", {}))
     phases.update({p: clock.seconds.get(p, 0.0) for p in EVAL_PHASES})
-    rec.update(info, phases=phases, wall={**rec.get("wall", {}), "eval": clock.elapsed()})
+    rec.update(info, phases=phases, wall={**rec.get("wall", {}), "eval": clock.elapsed()},
+               eval_parts={p: (parts.seconds.get(p, 0.0) if parts else 0.0) for p in EVAL_PARTS})
     return _finish(rec)
 
 
@@ -157,5 +162,5 @@ def phases_table(records: list[tuple[str, dict]]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["PHASES", "Phases", "mark_process_start", "compile_estimate", "read", "write", "merge_train", "merge_eval", "device_info",
+__all__ = ["PHASES", "Phases", "mark_process_start", "compile_estimate", "read", "write", "merge_train", "merge_eval", "device_info", "EVAL_PARTS",
            "phases_table"]

@@ -500,33 +500,37 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     checkpoints are not read back from disk (the same values: the results are the same).
 
     The seconds spent evaluating and writing replace the ``eval`` and ``write`` phases of RUN/speed.json."""
-    clock = timing.Phases()
+    clock, part_clock = timing.Phases(), timing.Phases()
     run_dir = Path(run_dir)
     if not (run_dir / "config.json").exists():
         raise RunError(f"{run_dir} is not a run directory (no config.json): pass the --run of a training run")
     with clock("eval"):
-        s, sets = _eval_setup(run_dir, _extra_sets(extra_sets, replay_file), robustness)
-        mgr = ckpt.manager(run_dir)
-        steps = _checkpoints_to_evaluate(mgr, every)
-        if not steps:
-            raise RunError(f"{run_dir} has no checkpoints yet: train it first")
-        abstract = jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert))
-        eps = _extra_episodes(s, sets)
-        split_sets = {"test": s.heldout, "validation": s.validation,
-                      **{EXTRA + n: e for n, e in eps.items() if extra_curves}}
-        held, part = evaluate.stack_sets(split_sets, steps=evaluate.replay_steps(
-            s.env, _lengths(split_sets.values()), _lengths(split_sets.values(), "margin")))
-        per_ckpt, codes = _evaluate_checkpoints(s, mgr, abstract, steps, held, part, ckpt_batch, progress, memory)
-        if not per_ckpt:
-            raise ckpt.nothing_restored(mgr, run_dir)
-        res, at, lat = _summarize(s, per_ckpt, codes, part)
-        if sets and extra_curves:
-            res["extra_sets"] = _extra_sets_results(s, per_ckpt, res, eps, sets)
-        elif sets:
-            res["extra_sets"] = _replay_extra_sets(s, mgr, abstract, res, sets, memory, eps)
+        with part_clock("setup"):
+            s, sets = _eval_setup(run_dir, _extra_sets(extra_sets, replay_file), robustness)
+            mgr = ckpt.manager(run_dir)
+            steps = _checkpoints_to_evaluate(mgr, every)
+            if not steps:
+                raise RunError(f"{run_dir} has no checkpoints yet: train it first")
+            abstract = jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert))
+            eps = _extra_episodes(s, sets)
+            split_sets = {"test": s.heldout, "validation": s.validation,
+                          **{EXTRA + n: e for n, e in eps.items() if extra_curves}}
+            held, part = evaluate.stack_sets(split_sets, steps=evaluate.replay_steps(
+                s.env, _lengths(split_sets.values()), _lengths(split_sets.values(), "margin")))
+        with part_clock("checkpoints"):
+            per_ckpt, codes = _evaluate_checkpoints(s, mgr, abstract, steps, held, part, ckpt_batch, progress,
+                                                    memory)
+            if not per_ckpt:
+                raise ckpt.nothing_restored(mgr, run_dir)
+            res, at, lat = _summarize(s, per_ckpt, codes, part)
+            if sets and extra_curves:
+                res["extra_sets"] = _extra_sets_results(s, per_ckpt, res, eps, sets)
+        with part_clock("extra_sets"):
+            if sets and not extra_curves:
+                res["extra_sets"] = _replay_extra_sets(s, mgr, abstract, res, sets, memory, eps)
     with clock("write"):
         _write_eval_outputs(run_dir, s, res, at, lat, sets, robustness)
-    timing.write(run_dir, timing.merge_eval(timing.read(run_dir), clock, **timing.device_info()))
+    timing.write(run_dir, timing.merge_eval(timing.read(run_dir), clock, part_clock, **timing.device_info()))
     return res
 
 

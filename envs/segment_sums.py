@@ -13,6 +13,7 @@ function is traced.
 from __future__ import annotations
 
 import contextlib
+import threading
 from typing import Iterator
 
 import jax
@@ -48,13 +49,23 @@ def _segment_sum(data, segment_ids, num_segments=None, *args, **kwargs):
     return _SEGMENT_SUM(data, segment_ids, num_segments, *args, **kwargs)
 
 
+_LOCK = threading.Lock()
+_ACTIVE = 0  # contexts open, over all threads
+
+
 @contextlib.contextmanager
 def gathered_segment_sums() -> Iterator[None]:
     """While tracing inside this context, ``jax.ops.segment_sum`` with numpy ids computes by gathers
-    (:func:`static_segment_sum`); any other call goes to JAX's own. Restores JAX's function on exit."""
-    previous = jax.ops.segment_sum
-    jax.ops.segment_sum = _segment_sum
+    (:func:`static_segment_sum`); any other call goes to JAX's own. JAX's function is put back when the last
+    context open (in any thread: programs may be traced in a background thread) closes."""
+    global _ACTIVE
+    with _LOCK:
+        _ACTIVE += 1
+        jax.ops.segment_sum = _segment_sum
     try:
         yield
     finally:
-        jax.ops.segment_sum = previous
+        with _LOCK:
+            _ACTIVE -= 1
+            if not _ACTIVE:
+                jax.ops.segment_sum = _SEGMENT_SUM

@@ -150,17 +150,21 @@ def test_default_splits_are_disjoint(fetchq, tmp_path, monkeypatch):
 
 
 def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, fetchq, tmp_path, monkeypatch,
-                                                          capsys):
+                                                          capsys, caplog):
     """A tiny run: every checkpoint on test and validation, the protocol's keys, and an extra set. The extra
     set is the test file itself, so its replay figures must equal the test replay figures at the same
-    checkpoints (the replay-only program and the stacked test + validation program agree)."""
+    checkpoints (the replay-only program and the stacked test + validation program agree). The first evaluation
+    was prepared while training ran (``EvalPrep``); the later ones, made from nothing, give the same figures."""
+    import jax
+
     from cogail_jax import data, demos, trainer
 
     val = data.save_demos(tmp_path / "val.hdf5", fetchq, demos.generate(fetchq, 6, seed=2), seed=2)
     cfg = tiny_cfg.replace(seeds=(3, 5), validation=str(val))
     run = tmp_path / "run"
     kept = {}
-    trainer.train_run(cfg, run, progress=False, keep=kept)
+    prep = trainer.EvalPrep(run, robustness=False, extra_sets={"again": demo_files[1]})  # made while training runs
+    trainer.train_run(cfg, run, progress=False, keep=kept, on_compiled=prep.start)
     assert sorted(kept) == [2, 4, 6]  # every checkpoint the training wrote (update 0 is not evaluated)
     from cogail_jax.report import read_scalars  # TensorBoard: every metric of every update, one file per seed
 
@@ -170,7 +174,20 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     for tag, (st, x) in sc["5"].items():
         assert st.tolist() == [u * spu for u in range(1, 7)] and np.all(np.isfinite(x)), tag
     assert np.all(sc["3"]["train/nonfinite"][1] == 0)
-    res = trainer.eval_run(run, progress=False, extra_sets={"again": demo_files[1]})
+    import logging
+
+    caplog.set_level(logging.WARNING)
+    def seen(x):  # a program compiled for sure: the log below does show compilations
+        return x + 1
+
+    with jax.log_compiles(True):  # its programs were compiled in the background: nothing compiles now
+        res = trainer.eval_run(run, progress=False, extra_sets={"again": demo_files[1]}, memory=kept,
+                               prepared=prep.result())
+        jax.jit(seen)(np.float32(1))
+    compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling jit(")]
+    assert any(m.startswith("Compiling jit(seen)") for m in compiled)
+    assert not [m for m in compiled if m.startswith(("Compiling jit(evaluate)", "Compiling jit(<lambda>)"))]
+    assert json.loads((run / "speed.json").read_text())["eval_parts"]["prepared"] > 0
     assert res["checkpoints"] == [2, 4, 6]
     assert res["splits"]["validation"] == {"file": str(val), "episodes": 6}
     assert res["splits"]["test"]["episodes"] == 4
@@ -242,8 +259,6 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
                 raise RuntimeError("RESOURCE_EXHAUSTED: Out of memory while trying to allocate 1.00GiB.")
             return fn(params, norm, held)
         return call
-
-    import jax
 
     monkeypatch.setattr(ev, "make_eval_fn", small_device)
     capsys.readouterr()

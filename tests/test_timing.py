@@ -33,7 +33,7 @@ def test_a_resumed_training_adds_up_and_an_evaluation_replaces():
     assert set(first["phases"]) == set(timing.PHASES) and first["phases"]["eval"] == 0.0
     assert first["env_steps_per_s"] == 50.0 and first["task"] == "fetchq"
     ev = timing.merge_eval(first, _clock(eval=5, write=1), _clock(setup=1, checkpoints=3.5, extra_sets=0.5))
-    assert ev["eval_parts"] == {"setup": 1, "checkpoints": 3.5, "extra_sets": 0.5}
+    assert ev["eval_parts"] == {"setup": 1, "checkpoints": 3.5, "extra_sets": 0.5, "prepared": 0.0}
     again = timing.merge_eval(ev, _clock(eval=6, write=2))
     assert again["eval_parts"] == dict.fromkeys(timing.EVAL_PARTS, 0.0)  # replaced with the new evaluation's
     assert again["phases"]["eval"] == 6 and again["phases"]["write"] == 2 and again["phases"]["train"] == 4

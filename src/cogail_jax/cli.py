@@ -331,16 +331,17 @@ def _dispatch(a) -> int:
               f"mean length {eps.length.mean():.1f}, strategies {counts.tolist()}")
         return 0
     if a.command == "train":
-        from .trainer import eval_run, train_run
+        from .trainer import EvalPrep, eval_run, train_run
 
         cfg = _config_from_args(a)
         kept = {}  # with --eval, each checkpoint's evaluation parameters kept in memory: none is read back
+        prep = EvalPrep(a.run, a.robustness, a.extra_curves) if a.eval else None  # made ready while training runs
         run = train_run(cfg, a.run, resume=a.resume, progress=not a.no_progress, devices=a.devices,
-                        keep=kept if a.eval else None)
+                        keep=kept if a.eval else None, on_compiled=prep.start if prep else None)
         print(f"trained: {run}")
         if a.eval:
             res = eval_run(run, progress=not a.no_progress, robustness=a.robustness, memory=kept,
-                           extra_curves=a.extra_curves)
+                           extra_curves=a.extra_curves, prepared=prep.result())
             print((Path(run) / "results.md").read_text())
             del res
         return 0

@@ -181,21 +181,26 @@ def replay_episodes(episodes: dict, code_dim: int) -> dict:
 
 
 def make_replay_fn(cfg: TrainConfig, env, nets):
-    """Jitted ``replay(params, norm, episodes) -> final metrics (seeds, episodes)``: the replay protocol alone
-    (params / norm with a leading seed axis; ``episodes``: ``heldout_arrays`` without ``strategy``). Used for extra
-    test sets added to a run evaluated already (``trainer.eval_extra_sets``); ``eval_run`` replays its extra sets
-    in the batch of ``make_eval_fn``."""
+    """Jitted ``replay(params, norm, episodes) -> final metrics (seeds, episodes)`` (``replay.lower(...)``: its
+    program lowered for those arguments' shapes, to compile ahead of time): the replay protocol alone
+    (params / norm with a leading seed axis; ``episodes``: ``heldout_arrays`` without ``strategy``). Replays the
+    extra test sets at the reported checkpoints (``trainer.eval_run``, ``trainer.eval_extra_sets``); with
+    ``extra_curves`` ``eval_run`` replays them in the batch of ``make_eval_fn`` instead."""
     episodes = _episodes_fn(cfg, env, nets)
     run = jax.jit(lambda params, norm, ep: episodes(params, norm, replay_episodes(ep, cfg.code_dim)))
 
-    def replay(params, norm, ep):  # recordings padded to the steps the replays run (a host-side shape)
+    def padded(ep):  # recordings padded to the steps the replays run (a host-side shape)
         width = replay_steps(env, np.asarray(jax.device_get(ep["length"])), ep.get("margin"))
         ah = ep["ah"]
         if ah.shape[1] < width:
             ah = jnp.concatenate([jnp.asarray(ah), jnp.zeros((ah.shape[0], width - ah.shape[1]) + ah.shape[2:],
                                                             jnp.asarray(ah).dtype)], 1)
-        return run(params, norm, {**ep, "ah": ah})
+        return {**ep, "ah": ah}
 
+    def replay(params, norm, ep):
+        return run(params, norm, padded(ep))
+
+    replay.lower = lambda params, norm, ep: run.lower(params, norm, padded(ep))  # ahead of time (shapes suffice)
     return replay
 
 

@@ -5,7 +5,8 @@ Phases, in seconds (``PHASES``):
 * ``start``: from the command's start to the training demonstrations: imports, the accelerator's start-up and the
   run folder (from ``train_run``'s call when it is not run by the ``cogail`` command);
 * ``demos``: loading (or generating and caching) the training demonstrations and building the programs;
-* ``bc``: the initial state and behaviour-cloning pre-training, their compilation included (0 on resume);
+* ``bc``: the initial state and behaviour-cloning pre-training, their compilation included (0 on resume); on one
+  device the training program is compiled while BC runs, and what of its compilation outlasts BC counts here;
 * ``compile``: the first training call minus a steady-state call (the median of the later calls; the whole first
   call when there is only one);
 * ``train``: the rest of the training loop (rollouts, updates, logs, checkpoints);
@@ -29,8 +30,10 @@ from typing import Iterator
 PHASES = ("start", "demos", "bc", "compile", "train", "eval", "write")
 TRAIN_PHASES = ("start", "demos", "bc", "compile", "train")
 EVAL_PHASES = ("eval", "write")
-EVAL_PARTS = ("setup", "checkpoints", "extra_sets")  # the set-up (splits, varied humans); every checkpoint's
-# program (interpolation, test, validation; tracing and compilation included); the extra sets' replays
+# The evaluation's parts: the set-up (splits, varied humans); every checkpoint's program (interpolation, test,
+# validation; tracing and compilation included); the extra sets' replays; and, not in the eval phase, the seconds
+# its set-up and compilation took in the background while training ran (``cogail train --eval``).
+EVAL_PARTS = ("setup", "checkpoints", "extra_sets", "prepared")
 FILE = "speed.json"
 
 

@@ -1,12 +1,14 @@
 """The host loop: set up a run directory, train with progress and TensorBoard logs, checkpoint, evaluate."""
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
 import platform
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -176,9 +178,38 @@ class LoopStats:
     steady_seconds: float = 0.0
 
 
-def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: timing.Phases):
+def _abstract(tree):
+    """Shapes, dtypes and (where committed to devices) shardings of a tree of arrays, as jit sees them when they
+    are passed to it (reading none of them: they may still be computed)."""
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding if getattr(
+        x, "committed", True) else None), tree)
+
+
+def _compile_during_bc(s: Setup, state, on_compiled) -> threading.Thread:
+    """A background thread, started: the training chunk compiled for ``state``'s shapes, then ``on_compiled(s,
+    state)`` (``EvalPrep.start``). The main thread meanwhile runs BC: a long device loop that the GPU runtime
+    drives from the calling thread, which holds no Python lock then. A failure only costs the time: the first
+    training call compiles the chunk (and raises the error) itself."""
+    abstract = _abstract(state)
+
+    def work():
+        try:
+            s.chunk.lower(abstract, s.expert).compile()
+        except Exception:  # noqa: BLE001
+            return
+        if on_compiled is not None:
+            on_compiled(s, abstract)
+
+    t = threading.Thread(target=work, name="compile-during-bc", daemon=True)
+    t.start()
+    return t
+
+
+def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: timing.Phases, on_compiled=None):
     """The state training starts from (restored on resume, else fresh with BC pre-training, timed as ``bc``),
-    placed on the devices; returns (state, first update)."""
+    placed on the devices; returns (state, first update, whether ``on_compiled`` was called or is pending).
+    On one device a fresh run compiles the training chunk while BC runs (``_compile_during_bc``), its compilation
+    in the ``bc`` phase where it outlasts BC."""
     cfg = s.cfg
     state, start = None, 0
     if resume:  # restored onto this process's first device, whatever layout saved it; placed below
@@ -188,9 +219,14 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
             start = step
             print(f"resuming {run_dir} from update {step}", flush=True)
     fresh = state is None
+    compiling = []
     if fresh:
         with clock("bc"):
-            state = jax.block_until_ready(s.init(cfg.seeds, s.expert))
+            one_device = seed_mesh(devices, len(cfg.seeds)) is None
+            state = jax.block_until_ready(s.init(cfg.seeds, s.expert, before_bc=lambda st: compiling.append(
+                _compile_during_bc(s, st, on_compiled)) if one_device else None))
+            for t in compiling:
+                t.join()
     state, s.expert = place_on_devices(state, s.expert, devices, len(cfg.seeds))
     here = ckpt.layout(state)
     if fresh:
@@ -202,7 +238,7 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
             print(f"restored {len(cfg.seeds)} seeds saved on {ckpt.describe(saved)} onto {ckpt.describe(here)}",
                   flush=True)
     ckpt.record_layout(run_dir, here, start)
-    return state, start
+    return state, start, bool(compiling)
 
 
 def _postfix(metrics: dict, stats: LoopStats) -> dict:
@@ -238,14 +274,14 @@ def _check_and_log(writers, metrics, update0: int, cfg: TrainConfig, saver) -> d
 
 
 def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool, stop_after: int | None,
-                keep: dict | None = None):
+                keep: dict | None = None, on_compiled=None):
     """Call the jitted chunk until the budget (or ``stop_after``), logging and checkpointing; returns LoopStats.
 
     The host never holds the device up: each call is dispatched before the previous call's metrics are logged; a
     checkpoint's state is copied on the device right after its call and written by a background thread
     (``checkpoint.BackgroundSaver``) once that call's metrics show finite parameters, while the next call runs.
     ``keep``: filled with {update: eval_params(...)} of every checkpoint written, so that ``eval_run`` need not
-    read them back from disk."""
+    read them back from disk. ``on_compiled(s, state)`` is called once the first call has run (``EvalPrep.start``)."""
     from tensorboardX import FileWriter
     from tqdm import tqdm
 
@@ -275,6 +311,8 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
             state, metrics = s.chunk(state, s.expert)
             if not stats.call_seconds:  # the first call compiles: timed on its own
                 jax.block_until_ready(metrics)
+                if on_compiled is not None:
+                    on_compiled(s, state)
             u0, stats.update = stats.update, stats.update + upc
             at_ckpt = stats.update % cfg.checkpoint_every == 0 or stats.update >= total
             copy = (stats.update, saver.copy(state)) if at_ckpt else None
@@ -299,11 +337,12 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
 
 
 def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True,
-              stop_after: int | None = None, devices: str | int | None = None, keep: dict | None = None) -> Path:
+              stop_after: int | None = None, devices: str | int | None = None, keep: dict | None = None,
+              on_compiled=None) -> Path:
     """Train (or resume) a run; returns the run directory. ``stop_after`` stops early after that many updates
     (tests use it to simulate an interrupted run). Records the time of each phase in RUN/speed.json
     (``timing``; a resumed run adds to it). ``keep``: a dict that receives each checkpoint's ``eval_params``
-    as it is written, for ``eval_run(..., memory=keep)``."""
+    as it is written, for ``eval_run(..., memory=keep)``. ``on_compiled``: see ``_train_loop``."""
     clock = timing.Phases()
     clock.take_process_start()  # the command's imports before this call count as "start"
     run_dir = Path(run_dir)
@@ -314,8 +353,8 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
     with clock("demos"):
         s = build(cfg, need_heldout=False)
     mgr = ckpt.manager(run_dir)
-    state, start = _start_state(s, mgr, run_dir, resume, devices, clock)
-    stats = _train_loop(s, state, mgr, run_dir, start, progress, stop_after, keep)
+    state, start, called = _start_state(s, mgr, run_dir, resume, devices, clock, on_compiled)
+    stats = _train_loop(s, state, mgr, run_dir, start, progress, stop_after, keep, None if called else on_compiled)
     compile_s = timing.compile_estimate(stats.call_seconds)
     clock.add("compile", compile_s)
     clock.add("train", stats.loop_seconds - compile_s)
@@ -363,11 +402,18 @@ def _extra_set_checkpoints(res: dict) -> dict[str, int]:
     return cks
 
 
+def _abstract_state(s: Setup):
+    """A zero-argument function giving the shapes of ``s``'s training state (``jax.eval_shape`` of its
+    initialisation: it traces the BC program, so only when a checkpoint is read from disk), computed once."""
+    return functools.cache(lambda: jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert)))
+
+
 def _checkpoint_params(mgr, abstract, memory: dict | None, step: int) -> dict:
-    """``eval_params`` of checkpoint ``step``: from ``memory`` (kept by the training loop) or read from disk."""
+    """``eval_params`` of checkpoint ``step``: from ``memory`` (kept by the training loop) or read from disk
+    (``abstract()``: the state's shapes, ``_abstract_state``)."""
     if memory and step in memory:
         return memory[step]
-    return eval_params(ckpt.restore(mgr, step, abstract))
+    return eval_params(ckpt.restore(mgr, step, abstract()))
 
 
 def _lengths(sets, key: str = "length") -> np.ndarray:
@@ -375,20 +421,27 @@ def _lengths(sets, key: str = "length") -> np.ndarray:
     return np.concatenate([np.asarray(e[key]) for e in sets] or [np.zeros(0, int)])
 
 
+def _extra_batch(s: Setup, eps: dict) -> tuple[dict, dict]:
+    """The extra sets' episodes stacked into one replay batch (``evaluate.make_replay_fn``'s ``episodes``) and each
+    set's slice of it."""
+    batch, part = evaluate.stack_sets(eps, steps=evaluate.replay_steps(s.env, _lengths(eps.values()),
+                                                                       _lengths(eps.values(), "margin")))
+    return {k: batch[k] for k in ("init", "ah", "length", "patient", "margin")}, part
+
+
 def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict, memory: dict | None = None,
-                       eps: dict | None = None) -> dict:
+                       eps: dict | None = None, replay=None) -> dict:
     """Replay each extra set at the selected and the paper-protocol replay checkpoints: all sets stacked into one
     batch (one compiled replay program, one call per checkpoint); returns {name: evaluate.summarize_extra_set(...)}.
-    ``memory``: checkpoints kept by the training loop (``eval_run``); ``eps``: the sets' episodes, if read already."""
-    replay = evaluate.make_replay_fn(s.cfg, s.env, s.nets)
+    ``memory``: checkpoints kept by the training loop (``eval_run``); ``eps``: the sets' episodes, if read already;
+    ``replay``: ``evaluate.make_replay_fn``'s program, if made already."""
+    replay = replay or evaluate.make_replay_fn(s.cfg, s.env, s.nets)
     cks = _extra_set_checkpoints(res)
     states = {st: _checkpoint_params(mgr, abstract, memory, st) for st in sorted(set(cks.values()))}
     eps = _extra_episodes(s, extra_sets) if eps is None else eps
     if not eps:
         return {}
-    batch, part = evaluate.stack_sets(eps, steps=evaluate.replay_steps(s.env, _lengths(eps.values()),
-                                                                       _lengths(eps.values(), "margin")))
-    arrays = {k: batch[k] for k in ("init", "ah", "length", "patient", "margin")}
+    arrays, part = _extra_batch(s, eps)
     succ = {key: np.asarray(jax.device_get(replay(states[st]["params"], states[st]["norm"], arrays))["success"])
             for key, st in cks.items()}
     return {name: evaluate.summarize_extra_set({key: x[:, part[name]] for key, x in succ.items()},
@@ -460,7 +513,7 @@ def eval_extra_sets(run_dir: str | Path, extra_sets: dict[str, str | Path]) -> d
         raise RunError(f"{run_dir}/results.json predates the reporting protocol: evaluate the run again")
     s = build(TrainConfig.load(run_dir / "config.json"), need_heldout=False)
     mgr = ckpt.manager(run_dir)
-    abstract = jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert))
+    abstract = _abstract_state(s)
     res["extra_sets"] = {**(res.get("extra_sets") or {}), **_replay_extra_sets(s, mgr, abstract, res, sets)}
     evaluate.save_results(run_dir, res)
     _save_extra_sets(run_dir, res, sets)
@@ -469,7 +522,8 @@ def eval_extra_sets(run_dir: str | Path, extra_sets: dict[str, str | Path]) -> d
 
 def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_file: str | Path | None = None,
              extra_sets: dict[str, str | Path] | None = None, ckpt_batch: int | None = None,
-             robustness: bool = False, memory: dict | None = None, extra_curves: bool = False) -> dict:
+             robustness: bool = False, memory: dict | None = None, extra_curves: bool = False,
+             prepared: EvalInputs | None = None) -> dict:
     """Evaluate every checkpoint of a run; write results.json / results.md and figures into the run dir.
 
     Every checkpoint and seed is evaluated on the test split (replay, interpolation, latent codes) and on the
@@ -499,6 +553,9 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     ``memory``: {update: ``eval_params``} kept by the training loop (``train_run(..., keep=...)``): those
     checkpoints are not read back from disk (the same values: the results are the same).
 
+    ``prepared``: the run's ``EvalInputs`` made already (``EvalPrep``, while training ran; its extra sets and
+    ``extra_curves`` then stand for the arguments').
+
     The seconds spent evaluating and writing replace the ``eval`` and ``write`` phases of RUN/speed.json."""
     clock, part_clock = timing.Phases(), timing.Phases()
     run_dir = Path(run_dir)
@@ -506,32 +563,124 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
         raise RunError(f"{run_dir} is not a run directory (no config.json): pass the --run of a training run")
     with clock("eval"):
         with part_clock("setup"):
-            s, sets = _eval_setup(run_dir, _extra_sets(extra_sets, replay_file), robustness)
             mgr = ckpt.manager(run_dir)
             steps = _checkpoints_to_evaluate(mgr, every)
             if not steps:
                 raise RunError(f"{run_dir} has no checkpoints yet: train it first")
-            abstract = jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert))
-            eps = _extra_episodes(s, sets)
-            split_sets = {"test": s.heldout, "validation": s.validation,
-                          **{EXTRA + n: e for n, e in eps.items() if extra_curves}}
-            held, part = evaluate.stack_sets(split_sets, steps=evaluate.replay_steps(
-                s.env, _lengths(split_sets.values()), _lengths(split_sets.values(), "margin")))
+            inp = prepared or _eval_inputs(run_dir, _extra_sets(extra_sets, replay_file), robustness, extra_curves)
+            s, sets, eps, part = inp.s, inp.sets, inp.eps, inp.part
+            abstract = _abstract_state(s)
         with part_clock("checkpoints"):
-            per_ckpt, codes = _evaluate_checkpoints(s, mgr, abstract, steps, held, part, ckpt_batch, progress,
-                                                    memory)
+            per_ckpt, codes = _evaluate_checkpoints(s, mgr, abstract, steps, inp.held, part, ckpt_batch, progress,
+                                                    memory, inp.evaluate_fn)
             if not per_ckpt:
                 raise ckpt.nothing_restored(mgr, run_dir)
             res, at, lat = _summarize(s, per_ckpt, codes, part)
-            if sets and extra_curves:
+            if sets and inp.extra_curves:
                 res["extra_sets"] = _extra_sets_results(s, per_ckpt, res, eps, sets)
         with part_clock("extra_sets"):
-            if sets and not extra_curves:
-                res["extra_sets"] = _replay_extra_sets(s, mgr, abstract, res, sets, memory, eps)
+            if sets and not inp.extra_curves:
+                res["extra_sets"] = _replay_extra_sets(s, mgr, abstract, res, sets, memory, eps, inp.replay_fn)
     with clock("write"):
         _write_eval_outputs(run_dir, s, res, at, lat, sets, robustness)
+    if prepared is not None:
+        part_clock.add("prepared", prepared.seconds)
     timing.write(run_dir, timing.merge_eval(timing.read(run_dir), clock, part_clock, **timing.device_info()))
     return res
+
+
+@dataclass
+class EvalInputs:
+    """What evaluating a run needs before it reads a checkpoint: the set-up, the extra sets (name -> file) and
+    their episodes, the batch of every checkpoint's program (test, validation; the extra sets too with
+    ``extra_curves``) and each set's slice of it, and the two programs (``evaluate.make_eval_fn``,
+    ``evaluate.make_replay_fn``). ``seconds``: how long making them took (``EvalPrep``)."""
+    s: Setup
+    sets: dict
+    eps: dict
+    held: dict
+    part: dict
+    extra_curves: bool
+    evaluate_fn: object
+    replay_fn: object
+    seconds: float = 0.0
+
+
+def _eval_inputs(run_dir: Path, sets: dict[str, str], robustness: bool, extra_curves: bool) -> EvalInputs:
+    s, sets = _eval_setup(run_dir, sets, robustness)
+    eps = _extra_episodes(s, sets)
+    split_sets = {"test": s.heldout, "validation": s.validation,
+                  **{EXTRA + n: e for n, e in eps.items() if extra_curves}}
+    held, part = evaluate.stack_sets(split_sets, steps=evaluate.replay_steps(
+        s.env, _lengths(split_sets.values()), _lengths(split_sets.values(), "margin")))
+    return EvalInputs(s, sets, eps, held, part, extra_curves, evaluate.make_eval_fn(s.cfg, s.env, s.nets),
+                      evaluate.make_replay_fn(s.cfg, s.env, s.nets))
+
+
+def _eval_struct(state) -> dict:
+    """The shapes of ``eval_params(state)`` (on this process's first device, as it puts them)."""
+    dev = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+    sub = {"params": {k: state.params[k] for k in EVAL_PARAMS}, "norm": state.norm}
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=dev), sub)
+
+
+def _compile_eval(inp: EvalInputs, struct: dict, checkpoints: int) -> None:
+    """Compile ``inp``'s programs for a run of ``checkpoints`` checkpoints (``struct``: ``_eval_struct``) as
+    ``eval_run`` will call them: the checkpoints' program for ``default_ckpt_batch`` of them, the replay of the
+    extra sets for one checkpoint."""
+    c = default_ckpt_batch(checkpoints)
+    stacked = jax.tree.map(lambda x: jax.ShapeDtypeStruct((c,) + x.shape, x.dtype, sharding=x.sharding), struct)
+    inp.evaluate_fn.lower(stacked["params"], stacked["norm"], inp.held).compile()
+    if inp.eps and not inp.extra_curves:
+        inp.replay_fn.lower(struct["params"], struct["norm"], _extra_batch(inp.s, inp.eps)[0]).compile()
+
+
+SWITCH_INTERVAL = 2e-4  # seconds: how soon a thread waiting for Python's lock gets it while EvalPrep traces
+
+
+class EvalPrep:
+    """``cogail train --eval``'s evaluation made ready while training runs, when the host is idle and the device
+    busy: in a background thread, the test, validation and varied-human sets are loaded (made if missing) and the
+    evaluation programs traced and compiled (``EvalInputs``). ``start`` (called by the training loop once the
+    training program has compiled) starts it; ``result()`` waits for it. A preparation that fails prints a
+    warning, and ``eval_run`` then prepares again itself (raising the error, if it is one, where it belongs)."""
+
+    def __init__(self, run_dir: str | Path, robustness: bool = True, extra_curves: bool = False,
+                 extra_sets: dict[str, str | Path] | None = None):
+        self.run_dir, self.robustness, self.extra_curves = Path(run_dir), robustness, extra_curves
+        self.extra_sets = _extra_sets(extra_sets, None)
+        self._thread: threading.Thread | None = None
+        self._out: EvalInputs | None = None
+        self._error: Exception | None = None
+
+    def start(self, s: Setup, state) -> None:
+        if self._thread is None:
+            total, every = total_updates(s.cfg), s.cfg.checkpoint_every
+            args = (_eval_struct(state), total // every + (1 if total % every else 0))
+            self._thread = threading.Thread(target=self._prepare, args=args, name="eval-prep", daemon=True)
+            self._thread.start()
+
+    def _prepare(self, struct: dict, checkpoints: int) -> None:
+        t0, interval = time.perf_counter(), sys.getswitchinterval()
+        sys.setswitchinterval(min(interval, SWITCH_INTERVAL))  # the training loop waits less for Python's lock
+        try:
+            inp = _eval_inputs(self.run_dir, dict(self.extra_sets), self.robustness, self.extra_curves)
+            _compile_eval(inp, struct, checkpoints)
+            inp.seconds = time.perf_counter() - t0
+            self._out = inp
+        except Exception as e:  # noqa: BLE001  (eval_run prepares again and raises it there)
+            self._error = e
+        finally:
+            sys.setswitchinterval(interval)
+
+    def result(self) -> EvalInputs | None:
+        if self._thread is None:
+            return None
+        self._thread.join()
+        if self._error is not None:
+            print(f"warning: preparing the evaluation during training failed ({self._error}); preparing it now",
+                  flush=True)
+        return self._out
 
 
 PATIENT = "patient-"  # an extra set replayed with a patient human (evaluate._episodes_fn, the task's replay_hold)
@@ -581,13 +730,13 @@ def _out_of_memory(e: Exception) -> bool:
 
 
 def _evaluate_checkpoints(s: Setup, mgr, abstract, steps: list[int], held: dict, part: dict, ckpt_batch: int,
-                          progress: bool, memory: dict | None = None) -> tuple[dict, object]:
+                          progress: bool, memory: dict | None = None, evaluate_fn=None) -> tuple[dict, object]:
     """{step: _split_sets(...)} for every checkpoint that restores (``ckpt_batch`` of them per device call), and
     the interpolation codes. A device call that runs out of memory is tried again with half as many checkpoints
     per call (a warning names the ``--ckpt-batch`` to give next time)."""
     from tqdm import tqdm
 
-    evaluate_fn = evaluate.make_eval_fn(s.cfg, s.env, s.nets)
+    evaluate_fn = evaluate_fn or evaluate.make_eval_fn(s.cfg, s.env, s.nets)
     per_ckpt = {}
     ckpt_batch = max(1, min(int(ckpt_batch or default_ckpt_batch(len(steps))), len(steps)))
     bar = tqdm(total=len(steps), desc="eval", disable=not progress, file=sys.stdout)
@@ -659,4 +808,4 @@ def _write_eval_outputs(out_dir: Path, s: Setup, res: dict, at: dict, lat, sets:
         evaluate.write_handover_spots(out_dir, res, im, at["interp_success"], s.train_metrics)
 
 
-__all__ = ["train_run", "eval_run", "eval_extra_sets", "RunError", "ConfigError", "build"]
+__all__ = ["train_run", "eval_run", "eval_extra_sets", "EvalPrep", "RunError", "ConfigError", "build"]

@@ -37,8 +37,8 @@ def _positive(text: str) -> int:
 
 EXTRA_CURVES_HELP = ("replay the extra sets and varied humans at every checkpoint, not only at the reported ones: "
                      "each set's replay success per checkpoint in results.json (extra_sets.<name>.curve) and "
-                     "RUN/robustness_curves.png; the reported figures are the same, the evaluation several times "
-                     "longer")
+                     "RUN/robustness_curves.png; the evaluation takes several times longer, and on a GPU the figures "
+                     "move at the rounding level (another batch)")
 
 
 def build_parser() -> argparse.ArgumentParser:

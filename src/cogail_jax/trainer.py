@@ -535,7 +535,8 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     paper-protocol replay checkpoint (one compiled replay program, ``_replay_extra_sets``); results in
     results.json's ``extra_sets[name]`` and in RUN/replay-<name>/results.{json,md}. ``extra_curves``: replay them
     at every checkpoint instead, in the batch of the test and validation splits, and add each set's ``curve``
-    (and RUN/robustness_curves.png); the reported figures are the same, for several times the evaluation's work.
+    (and RUN/robustness_curves.png), for several times the evaluation's work; the figures are the same on the CPU
+    and move at the rounding level on a GPU (where a batch's kernels depend on its size).
 
     The interpolation rollouts and the replays of the test and validation splits run as one batch of one
     compiled program (``evaluate.make_eval_fn``), at every checkpoint.

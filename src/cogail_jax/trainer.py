@@ -442,8 +442,9 @@ def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict, mem
     if not eps:
         return {}
     arrays, part = _extra_batch(s, eps)
-    succ = {key: np.asarray(jax.device_get(replay(states[st]["params"], states[st]["norm"], arrays))["success"])
-            for key, st in cks.items()}
+    at = {st: np.asarray(jax.device_get(replay(states[st]["params"], states[st]["norm"], arrays))["success"])
+          for st in states}  # once per checkpoint: the selected one is often the paper protocol's too
+    succ = {key: at[st] for key, st in cks.items()}
     return {name: evaluate.summarize_extra_set({key: x[:, part[name]] for key, x in succ.items()},
                                                eps[name]["strategy"], s.cfg.seeds, s.env.strategy_names, cks,
                                                file=path)

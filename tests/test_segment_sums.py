@@ -75,3 +75,23 @@ def test_the_handover_physics_step_sums_over_its_tree_without_scatters():
     with jax.default_matmul_precision("highest"):
         plain = jax.make_jaxpr(lambda d: mc.mjx.step(env.mx, d))(d)
     assert _segment_sum_scatters(plain.jaxpr) > 10
+
+
+def test_mjx_forward_is_traced_once_for_reset_step_and_later_programs(monkeypatch):
+    """``mjx_common.shared_forward``: one trace per matmul precision (reset: the default; step: highest), reused by
+    every later program of the process, whatever vmap it is under."""
+    import cogail_envs
+    from cogail_envs import mjx_common as mc
+
+    env = cogail_envs.make_env("handover")  # a model of its own: a shared forward of its own
+    real, traces = mc.mjx.forward, []
+    monkeypatch.setattr(mc.mjx, "forward", lambda m, d: traces.append(m) or real(m, d))
+    action = jnp.zeros(env.human_action_size + env.robot_action_size)
+
+    def program(key):
+        return env.step(env.reset(key), action)
+
+    jax.make_jaxpr(jax.vmap(program))(jax.random.split(jax.random.PRNGKey(0), 2))
+    assert len(traces) == 2 and all(m is env.mx for m in traces)
+    jax.make_jaxpr(program)(jax.random.PRNGKey(1))  # another program, no vmap: nothing traced again
+    assert len(traces) == 2

@@ -1,3 +1,4 @@
+import json
 import subprocess
 import sys
 
@@ -192,3 +193,23 @@ def test_the_installed_command_sets_the_flag_before_jax_starts():
     r = subprocess.run([sys.executable, "-c", code, "report", "--run", "/nonexistent"], capture_output=True,
                        text=True, timeout=120, env={**__import__("os").environ, "XLA_FLAGS": ""})
     assert "FLAGS --xla_gpu_deterministic_ops=true cpu" in r.stdout, r.stderr
+
+
+def test_train_with_eval_prepares_the_evaluation_while_training(demo_files, fetchq, tmp_path, capsys):
+    """`cogail train --eval`: the evaluation's sets and programs are made ready in the background during training
+    (speed.json's eval_parts.prepared), and the evaluation reports every checkpoint."""
+    from cogail_jax import data, demos
+
+    train, held = demo_files
+    val = data.save_demos(tmp_path / "val.hdf5", fetchq, demos.generate(fetchq, 4, seed=2), seed=2)
+    run = tmp_path / "run"
+    assert cli.main(["train", "--task", "fetchq", "--run", str(run), "--demos", str(train), "--heldout", str(held),
+                     "--validation", str(val), "--num-envs", "4", "--unroll-length", "16", "--total-steps", "256",
+                     "--checkpoint-every", "2", "--bc-steps", "0", "--seeds", "3", "--no-robustness", "--eval",
+                     "--no-progress", "--set", "updates_per_call=2", "--set", "ppo_epochs=2", "--set",
+                     "num_minibatches=2", "--set", "inner_updates=2", "--set", "inner_batch=32", "--set",
+                     "eval_codes=4"]) == 0
+    rec = json.loads((run / "speed.json").read_text())
+    assert rec["eval_parts"]["prepared"] > 0 and rec["phases"]["eval"] > 0
+    assert json.loads((run / "results.json").read_text())["checkpoints"] == [2, 4]
+    assert "selected on validation" in capsys.readouterr().out

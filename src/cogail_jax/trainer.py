@@ -222,9 +222,11 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
     compiling = []
     if fresh:
         with clock("bc"):
-            one_device = seed_mesh(devices, len(cfg.seeds)) is None
-            state = jax.block_until_ready(s.init(cfg.seeds, s.expert, before_bc=lambda st: compiling.append(
-                _compile_during_bc(s, st, on_compiled)) if one_device else None))
+            before_bc = None
+            if seed_mesh(devices, len(cfg.seeds)) is None:  # one device: the chunk compiles while BC runs
+                def before_bc(st):
+                    compiling.append(_compile_during_bc(s, st, on_compiled))
+            state = jax.block_until_ready(s.init(cfg.seeds, s.expert, before_bc))
             for t in compiling:
                 t.join()
     state, s.expert = place_on_devices(state, s.expert, devices, len(cfg.seeds))
@@ -643,9 +645,10 @@ SWITCH_INTERVAL = 2e-4  # seconds: how soon a thread waiting for Python's lock g
 class EvalPrep:
     """``cogail train --eval``'s evaluation made ready while training runs, when the host is idle and the device
     busy: in a background thread, the test, validation and varied-human sets are loaded (made if missing) and the
-    evaluation programs traced and compiled (``EvalInputs``). ``start`` (called by the training loop once the
-    training program has compiled) starts it; ``result()`` waits for it. A preparation that fails prints a
-    warning, and ``eval_run`` then prepares again itself (raising the error, if it is one, where it belongs)."""
+    evaluation programs traced and compiled (``EvalInputs``). ``start`` starts it once the training program has
+    compiled (``train_run``'s ``on_compiled``: while BC runs on a fresh one-device run, else after the first
+    training call); ``result()`` waits for it. A preparation that fails prints a warning, and ``eval_run`` then
+    prepares again itself (raising the error, if it is one, where it belongs)."""
 
     def __init__(self, run_dir: str | Path, robustness: bool = True, extra_curves: bool = False,
                  extra_sets: dict[str, str | Path] | None = None):

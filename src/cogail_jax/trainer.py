@@ -682,9 +682,9 @@ class EvalPrep:
         if self._thread is None:
             return None
         self._thread.join()
-        if self._error is not None:
+        if self._error is not None and not isinstance(self._error, (ConfigError, data.DatasetError, RunError)):
             print(f"warning: preparing the evaluation during training failed ({self._error}); preparing it now",
-                  flush=True)
+                  flush=True)  # (a user's error is raised again by eval_run, in one sentence)
         return self._out
 
 

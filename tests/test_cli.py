@@ -195,21 +195,32 @@ def test_the_installed_command_sets_the_flag_before_jax_starts():
     assert "FLAGS --xla_gpu_deterministic_ops=true cpu" in r.stdout, r.stderr
 
 
+def _tiny_train_eval(run, train, held, validation) -> int:
+    return cli.main(["train", "--task", "fetchq", "--run", str(run), "--demos", str(train), "--heldout", str(held),
+                     "--validation", str(validation), "--num-envs", "4", "--unroll-length", "16", "--total-steps",
+                     "256", "--checkpoint-every", "2", "--bc-steps", "0", "--seeds", "3", "--no-robustness", "--eval",
+                     "--no-progress", "--set", "updates_per_call=2", "--set", "ppo_epochs=2", "--set",
+                     "num_minibatches=2", "--set", "inner_updates=2", "--set", "inner_batch=32", "--set",
+                     "eval_codes=4"])
+
+
 def test_train_with_eval_prepares_the_evaluation_while_training(demo_files, fetchq, tmp_path, capsys):
     """`cogail train --eval`: the evaluation's sets and programs are made ready in the background during training
-    (speed.json's eval_parts.prepared), and the evaluation reports every checkpoint."""
+    (speed.json's eval_parts.prepared), and the evaluation reports every checkpoint. A validation file that cannot
+    be read ends the command in one sentence after training, whose checkpoints are kept."""
     from cogail_jax import data, demos
 
     train, held = demo_files
     val = data.save_demos(tmp_path / "val.hdf5", fetchq, demos.generate(fetchq, 4, seed=2), seed=2)
     run = tmp_path / "run"
-    assert cli.main(["train", "--task", "fetchq", "--run", str(run), "--demos", str(train), "--heldout", str(held),
-                     "--validation", str(val), "--num-envs", "4", "--unroll-length", "16", "--total-steps", "256",
-                     "--checkpoint-every", "2", "--bc-steps", "0", "--seeds", "3", "--no-robustness", "--eval",
-                     "--no-progress", "--set", "updates_per_call=2", "--set", "ppo_epochs=2", "--set",
-                     "num_minibatches=2", "--set", "inner_updates=2", "--set", "inner_batch=32", "--set",
-                     "eval_codes=4"]) == 0
+    assert _tiny_train_eval(run, train, held, val) == 0
     rec = json.loads((run / "speed.json").read_text())
     assert rec["eval_parts"]["prepared"] > 0 and rec["phases"]["eval"] > 0
     assert json.loads((run / "results.json").read_text())["checkpoints"] == [2, 4]
     assert "selected on validation" in capsys.readouterr().out
+    bad = tmp_path / "bad.hdf5"
+    bad.write_text("not hdf5")
+    assert _tiny_train_eval(tmp_path / "run2", train, held, bad) == 2
+    out, err = capsys.readouterr()
+    assert "warning" not in out and err.strip().count("\n") == 0 and "not an HDF5 file" in err
+    assert (tmp_path / "run2" / "checkpoints").is_dir() and not (tmp_path / "run2" / "results.json").exists()

@@ -28,9 +28,17 @@ def test_compile_estimate_is_the_first_call_over_a_steady_one(calls, want):
     assert timing.compile_estimate(calls) == want
 
 
+def test_call_parts_split_the_calls_excess_between_checkpoints_and_the_rest():
+    parts = timing.call_parts([9.0, 1.0, 1.0, 3.0, 1.0, 2.5, 1.0], {3, 4})
+    assert parts == {"calls": 6, "median_call": 1.0, "checkpoint_excess": 2.0, "other_excess": 1.5}
+    assert timing.call_parts([9.0], {0})["calls"] == 0 and timing.call_parts([], set())["median_call"] == 0.0
+
+
 def test_a_resumed_training_adds_up_and_an_evaluation_replaces():
-    first = timing.merge_train({}, _clock(demos=1, bc=2, compile=3, train=4), 100, 2.0, False, task="fetchq")
+    first = timing.merge_train({}, _clock(demos=1, bc=2, compile=3, train=4), 100, 2.0, False,
+                               {"bc_run": 1.5, "calls": 3}, task="fetchq")
     assert set(first["phases"]) == set(timing.PHASES) and first["phases"]["eval"] == 0.0
+    assert first["train_parts"] == {**dict.fromkeys(timing.TRAIN_PARTS, 0.0), "bc_run": 1.5, "calls": 3}
     assert first["env_steps_per_s"] == 50.0 and first["task"] == "fetchq"
     ev = timing.merge_eval(first, _clock(eval=5, write=1), _clock(setup=1, checkpoints=3.5, extra_sets=0.5))
     assert ev["eval_parts"] == {"setup": 1, "checkpoints": 3.5, "extra_sets": 0.5, "prepared": 0.0}
@@ -60,6 +68,9 @@ def test_bench_phases_prints_a_table_of_runs(tmp_path, capsys):
     assert lines[2].startswith(f"| {run} | handover | 0.0 | 1.5 | 2.0 | 3.0 | 40.0 | 7.0 | 0.5 | ")
     assert lines[2].endswith(" | 100 |")
     assert lines[3] == f"| {old} | - | - | - | - | - | - | - | - | - | 2e+05 |"
+    assert lines[5].startswith("| run | bc_run | chunk_compile | compile_wait | calls | median_call |")
+    assert lines[7] == f"| {run} | 0.0 | 0.0 | 0.0 | 0 | 0.000 | 0.0 | 0.0 | 0.0 | 0.0 | 0.0 | 0.0 |"
+    assert lines[8] == f"| {old} | " + " | ".join(["-"] * 11) + " |"
 
     assert cli.main(["bench", "--phases", str(tmp_path / "none")]) == 2
     err = capsys.readouterr().err.strip().splitlines()

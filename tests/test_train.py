@@ -171,6 +171,10 @@ def test_resume_is_exact(tiny_cfg, tmp_path):
     assert speed["phases"]["start"] > 0  # the run folder and the devices, before the demonstrations
     assert speed["env_steps_per_s"] > 0 and speed["updates"] == trainer.total_updates(tiny_cfg)
     assert speed["device"] and isinstance(speed["deterministic_ops"], bool) and speed["task"] == "fetchq"
+    parts = speed["train_parts"]  # BC and the chunk compiled beside it; the calls after the first, checkpoints apart
+    assert parts["bc_run"] > 0 and parts["chunk_compile"] > 0 and parts["compile_wait"] >= 0
+    assert parts["calls"] == trainer.total_updates(tiny_cfg) // tiny_cfg.updates_per_call - 1
+    assert parts["median_call"] > 0 and parts["checkpoint_excess"] >= 0 and parts["other_excess"] >= 0
 
 
 def test_bc_pretraining_beats_untrained_policy(tiny_cfg, fetchq):

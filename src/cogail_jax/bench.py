@@ -183,7 +183,8 @@ def add_arguments(p) -> None:
 
 
 def phases_report(runs) -> str:
-    """The markdown table of the runs' RUN/speed.json (``timing.phases_table``); a run without one is an error."""
+    """The markdown tables of the runs' RUN/speed.json: seconds per phase (``timing.phases_table``) and the
+    phases' parts (``timing.parts_table``); a run without one is an error."""
     from . import timing
     from .trainer import RunError
 
@@ -193,7 +194,7 @@ def phases_report(runs) -> str:
         if not rec:
             raise RunError(f"{run} has no readable {timing.FILE}: train the run with `cogail train` first")
         records.append((str(run), rec))
-    return timing.phases_table(records)
+    return timing.phases_table(records) + "\n\n" + timing.parts_table(records)
 
 
 def run_from_args(a) -> None:

@@ -9,7 +9,8 @@ Phases, in seconds (``PHASES``):
   device the training program is compiled while BC runs, and what of its compilation outlasts BC counts here;
 * ``compile``: the first training call minus a steady-state call (the median of the later calls; the whole first
   call when there is only one);
-* ``train``: the rest of the training loop (rollouts, updates, logs, checkpoints);
+* ``train``: the rest of the training loop (rollouts, updates, logs, checkpoints); ``train_parts``
+  (``TRAIN_PARTS``) splits the ``bc`` and ``train`` phases further;
 * ``eval``: evaluating the checkpoints (the test and validation splits loaded, the varied humans made); its parts
   are in ``eval_parts`` (``EVAL_PARTS``);
 * ``write``: writing results.json / results.md and the figures.
@@ -34,6 +35,13 @@ EVAL_PHASES = ("eval", "write")
 # validation; tracing and compilation included); the extra sets' replays; and, not in the eval phase, the seconds
 # its set-up and compilation took in the background while training ran (``cogail train --eval``).
 EVAL_PARTS = ("setup", "checkpoints", "extra_sets", "prepared")
+# The bc and train phases' parts: ``bc_run``, the initial state and BC until they are ready (main thread);
+# ``chunk_compile``, the training program's compilation in the background meanwhile (one device, fresh run);
+# ``compile_wait``, how long the bc phase waited for it after BC; ``calls``, the training calls after the first;
+# ``median_call``, their median seconds; ``checkpoint_excess`` / ``other_excess``: the seconds over the median of
+# the calls that copied or queued a checkpoint, and of the others.
+TRAIN_PARTS = ("bc_run", "chunk_compile", "compile_wait", "calls", "median_call", "checkpoint_excess",
+               "other_excess")
 FILE = "speed.json"
 
 
@@ -88,6 +96,19 @@ def compile_estimate(call_seconds: list[float]) -> float:
     return max(0.0, call_seconds[0] - statistics.median(call_seconds[1:]))
 
 
+def call_parts(call_seconds: list[float], checkpoint_calls: set[int]) -> dict[str, float]:
+    """``TRAIN_PARTS``' share of the training loop: the calls after the first (which compiles), their median, and
+    the seconds over it of the calls in ``checkpoint_calls`` (indices into ``call_seconds``) and of the others."""
+    later = call_seconds[1:]
+    if not later:
+        return {"calls": 0, "median_call": 0.0, "checkpoint_excess": 0.0, "other_excess": 0.0}
+    med = statistics.median(later)
+    over = [(i, max(0.0, t - med)) for i, t in enumerate(call_seconds) if i > 0]
+    return {"calls": len(later), "median_call": med,
+            "checkpoint_excess": sum(x for i, x in over if i in checkpoint_calls),
+            "other_excess": sum(x for i, x in over if i not in checkpoint_calls)}
+
+
 def read(run_dir: str | Path) -> dict:
     """RUN/speed.json, or {} when it is missing or unreadable."""
     try:
@@ -110,9 +131,10 @@ def _finish(rec: dict) -> dict:
 
 
 def merge_train(old: dict, clock: Phases, steady_steps: int, steady_seconds: float, resumed: bool,
-                **info) -> dict:
+                parts: dict | None = None, **info) -> dict:
     """The record after a training call: ``clock``'s training phases (added to ``old``'s when ``resumed``, else
-    replacing ``old``), the env steps and seconds after compilation, and ``info`` (task, device, ...)."""
+    replacing ``old``), the env steps and seconds after compilation, ``parts`` (``TRAIN_PARTS``, this call's:
+    they replace ``old``'s) and ``info`` (task, device, ...)."""
     rec = dict(old) if resumed else {}
     phases = dict(rec.get("phases", {}))
     wall = dict(rec.get("wall", {}))
@@ -122,7 +144,8 @@ def merge_train(old: dict, clock: Phases, steady_steps: int, steady_seconds: flo
     steps = int(rec.get("train_env_steps", 0)) + int(steady_steps)
     secs = float(rec.get("seconds_after_compile", 0.0)) + float(steady_seconds)
     rec.update(info, phases=phases, wall=wall, train_env_steps=steps, seconds_after_compile=secs,
-               env_steps_per_s=steps / secs if steps and secs > 0 else None)
+               env_steps_per_s=steps / secs if steps and secs > 0 else None,
+               train_parts={p: float((parts or {}).get(p, 0.0)) for p in TRAIN_PARTS})
     return _finish(rec)
 
 
@@ -165,5 +188,19 @@ def phases_table(records: list[tuple[str, dict]]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["PHASES", "Phases", "mark_process_start", "compile_estimate", "read", "write", "merge_train", "merge_eval", "device_info", "EVAL_PARTS",
-           "phases_table"]
+def parts_table(records: list[tuple[str, dict]]) -> str:
+    """A markdown table, one row per (run name, speed.json record): ``TRAIN_PARTS`` and ``EVAL_PARTS`` (seconds;
+    ``calls`` a count); "-" where a record has none."""
+    head = ["run", *TRAIN_PARTS, *(f"eval {p}" for p in EVAL_PARTS)]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for name, rec in records:
+        tp, ep = rec.get("train_parts") or {}, rec.get("eval_parts") or {}
+        cells = [str(int(tp["calls"])) if p == "calls" and isinstance(tp.get(p), (int, float)) else
+                 f"{tp[p]:.3f}" if p == "median_call" and isinstance(tp.get(p), (int, float)) else _cell(tp.get(p))
+                 for p in TRAIN_PARTS]
+        lines.append("| " + " | ".join([name, *cells, *(_cell(ep.get(p)) for p in EVAL_PARTS)]) + " |")
+    return "\n".join(lines)
+
+
+__all__ = ["PHASES", "Phases", "mark_process_start", "compile_estimate", "read", "write", "merge_train", "merge_eval", "device_info", "EVAL_PARTS", "TRAIN_PARTS", "call_parts",
+           "phases_table", "parts_table"]

@@ -10,7 +10,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import jax
@@ -176,6 +176,7 @@ class LoopStats:
     loop_seconds: float = 0.0
     steady_steps: int = 0
     steady_seconds: float = 0.0
+    checkpoint_calls: set = field(default_factory=set)  # calls that copied or queued a checkpoint
 
 
 def _abstract(tree):
@@ -185,18 +186,22 @@ def _abstract(tree):
         x, "committed", True) else None), tree)
 
 
-def _compile_during_bc(s: Setup, state, on_compiled) -> threading.Thread:
+def _compile_during_bc(s: Setup, state, on_compiled, seconds: dict) -> threading.Thread:
     """A background thread, started: the training chunk compiled for ``state``'s shapes, then ``on_compiled(s,
     state)`` (``EvalPrep.start``). The main thread meanwhile runs BC: a long device loop that the GPU runtime
     drives from the calling thread, which holds no Python lock then. A failure only costs the time: the first
-    training call compiles the chunk (and raises the error) itself."""
+    training call compiles the chunk (and raises the error) itself. ``seconds["chunk_compile"]``: how long the
+    compilation took."""
     abstract = _abstract(state)
 
     def work():
+        t0 = time.perf_counter()
         try:
             s.chunk.lower(abstract, s.expert).compile()
         except Exception:  # noqa: BLE001
             return
+        finally:
+            seconds["chunk_compile"] = time.perf_counter() - t0
         if on_compiled is not None:
             on_compiled(s, abstract)
 
@@ -205,11 +210,13 @@ def _compile_during_bc(s: Setup, state, on_compiled) -> threading.Thread:
     return t
 
 
-def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: timing.Phases, on_compiled=None):
+def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: timing.Phases, on_compiled=None,
+                 parts: dict | None = None):
     """The state training starts from (restored on resume, else fresh with BC pre-training, timed as ``bc``),
     placed on the devices; returns (state, first update, whether ``on_compiled`` was called or is pending).
     On one device a fresh run compiles the training chunk while BC runs (``_compile_during_bc``), its compilation
-    in the ``bc`` phase where it outlasts BC."""
+    in the ``bc`` phase where it outlasts BC. ``parts`` receives the bc phase's ``timing.TRAIN_PARTS``."""
+    parts = {} if parts is None else parts
     cfg = s.cfg
     state, start = None, 0
     if resume:  # restored onto this process's first device, whatever layout saved it; placed below
@@ -225,10 +232,13 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
             before_bc = None
             if seed_mesh(devices, len(cfg.seeds)) is None:  # one device: the chunk compiles while BC runs
                 def before_bc(st):
-                    compiling.append(_compile_during_bc(s, st, on_compiled))
+                    compiling.append(_compile_during_bc(s, st, on_compiled, parts))
+            t0 = time.perf_counter()
             state = jax.block_until_ready(s.init(cfg.seeds, s.expert, before_bc))
+            t1 = time.perf_counter()
             for t in compiling:
                 t.join()
+            parts.update(bc_run=t1 - t0, compile_wait=time.perf_counter() - t1)
     state, s.expert = place_on_devices(state, s.expert, devices, len(cfg.seeds))
     here = ckpt.layout(state)
     if fresh:
@@ -318,6 +328,8 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
             u0, stats.update = stats.update, stats.update + upc
             at_ckpt = stats.update % cfg.checkpoint_every == 0 or stats.update >= total
             copy = (stats.update, saver.copy(state)) if at_ckpt else None
+            if at_ckpt or (pending is not None and pending[2] is not None):  # copies one, or queues the last
+                stats.checkpoint_calls.add(len(stats.call_seconds))
             drain()
             pending = (u0, metrics, copy)
             now = time.perf_counter()
@@ -355,13 +367,15 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
     with clock("demos"):
         s = build(cfg, need_heldout=False)
     mgr = ckpt.manager(run_dir)
-    state, start, called = _start_state(s, mgr, run_dir, resume, devices, clock, on_compiled)
+    parts: dict = {}
+    state, start, called = _start_state(s, mgr, run_dir, resume, devices, clock, on_compiled, parts)
     stats = _train_loop(s, state, mgr, run_dir, start, progress, stop_after, keep, None if called else on_compiled)
     compile_s = timing.compile_estimate(stats.call_seconds)
     clock.add("compile", compile_s)
     clock.add("train", stats.loop_seconds - compile_s)
+    parts.update(timing.call_parts(stats.call_seconds, stats.checkpoint_calls))
     timing.write(run_dir, timing.merge_train(
-        timing.read(run_dir) if resume else {}, clock, stats.steady_steps, stats.steady_seconds, resume,
+        timing.read(run_dir) if resume else {}, clock, stats.steady_steps, stats.steady_seconds, resume, parts,
         task=s.cfg.task, method=s.cfg.method, updates=stats.update, seeds=len(s.cfg.seeds),
         steps_per_update=s.cfg.steps_per_update, **timing.device_info()))
     return run_dir

@@ -36,12 +36,11 @@ EVAL_PHASES = ("eval", "write")
 # its set-up and compilation took in the background while training ran (``cogail train --eval``).
 EVAL_PARTS = ("setup", "checkpoints", "extra_sets", "prepared")
 # The bc and train phases' parts: ``bc_run``, the initial state and BC until they are ready (main thread);
-# ``compile_start``, when (in the bc phase) the training program began compiling in the background, and
-# ``chunk_compile``, how long that took (one device, fresh run); ``compile_wait``, how long the bc phase waited
-# for it after BC; ``calls``, the training calls after the first;
+# ``chunk_compile``, the training program's compilation in the background meanwhile (one device, fresh run);
+# ``compile_wait``, how long the bc phase waited for it after BC; ``calls``, the training calls after the first;
 # ``median_call``, their median seconds; ``checkpoint_excess`` / ``other_excess``: the seconds over the median of
 # the calls that copied or queued a checkpoint, and of the others.
-TRAIN_PARTS = ("bc_run", "compile_start", "chunk_compile", "compile_wait", "calls", "median_call", "checkpoint_excess",
+TRAIN_PARTS = ("bc_run", "chunk_compile", "compile_wait", "calls", "median_call", "checkpoint_excess",
                "other_excess")
 FILE = "speed.json"
 

@@ -373,13 +373,10 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
     init_jit = jax.jit(jax.vmap(partial(init_state, ctx, norm, code_init)))
     bc_jit = jax.jit(jax.vmap(partial(bc_pretrain, ctx), in_axes=(0, None)))
 
-    def init(seeds, expert, before_bc=None):
-        """``before_bc(shapes)``: called with the initial state's shapes (``jax.ShapeDtypeStruct``s) as soon as its
-        program is traced, before it is compiled and run, so that the caller can start compiling what follows."""
-        keys = jnp.stack([jax.random.PRNGKey(int(s)) for s in seeds])
+    def init(seeds, expert, before_bc=None):  # before_bc(state): called with the initial state before BC runs
+        state = init_jit(jnp.stack([jax.random.PRNGKey(int(s)) for s in seeds]))
         if before_bc is not None:
-            before_bc(init_jit.trace(keys).out_info)  # the call below reuses this trace
-        state = init_jit(keys)
+            before_bc(state)
         if cfg.bc_steps:
             state, _ = bc_jit(state, expert)
         return state

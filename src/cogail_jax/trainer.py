@@ -186,13 +186,13 @@ def _abstract(tree):
         x, "committed", True) else None), tree)
 
 
-def _compile_during_bc(s: Setup, shapes, on_compiled, seconds: dict) -> threading.Thread:
-    """A background thread, started: the training chunk compiled for the initial state's ``shapes``, then
-    ``on_compiled(s, shapes)`` (``EvalPrep.start``). The main thread meanwhile compiles and runs the initial state
-    and BC (a long device loop that the GPU runtime drives from the calling thread, which holds no Python lock
-    then). A failure only costs the time: the first training call compiles the chunk (and raises the error)
-    itself. ``seconds["chunk_compile"]``: how long the compilation took."""
-    abstract = _abstract(shapes)
+def _compile_during_bc(s: Setup, state, on_compiled, seconds: dict) -> threading.Thread:
+    """A background thread, started: the training chunk compiled for ``state``'s shapes, then ``on_compiled(s,
+    state)`` (``EvalPrep.start``). The main thread meanwhile runs BC: a long device loop that the GPU runtime
+    drives from the calling thread, which holds no Python lock then. A failure only costs the time: the first
+    training call compiles the chunk (and raises the error) itself. ``seconds["chunk_compile"]``: how long the
+    compilation took."""
+    abstract = _abstract(state)
 
     def work():
         t0 = time.perf_counter()
@@ -230,11 +230,10 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
     if fresh:
         with clock("bc"):
             before_bc = None
-            t0 = time.perf_counter()
             if seed_mesh(devices, len(cfg.seeds)) is None:  # one device: the chunk compiles while BC runs
-                def before_bc(shapes):
-                    parts["compile_start"] = time.perf_counter() - t0
-                    compiling.append(_compile_during_bc(s, shapes, on_compiled, parts))
+                def before_bc(st):
+                    compiling.append(_compile_during_bc(s, st, on_compiled, parts))
+            t0 = time.perf_counter()
             state = jax.block_until_ready(s.init(cfg.seeds, s.expert, before_bc))
             t1 = time.perf_counter()
             for t in compiling:

@@ -202,5 +202,5 @@ def parts_table(records: list[tuple[str, dict]]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["PHASES", "Phases", "mark_process_start", "compile_estimate", "read", "write", "merge_train", "merge_eval", "device_info", "EVAL_PARTS", "TRAIN_PARTS", "call_parts",
-           "phases_table", "parts_table"]
+__all__ = ["PHASES", "Phases", "mark_process_start", "compile_estimate", "call_parts", "read", "write", "merge_train",
+           "merge_eval", "device_info", "EVAL_PARTS", "TRAIN_PARTS", "phases_table", "parts_table"]

@@ -52,6 +52,22 @@ def test_no_recompilation_after_first_call(setup, trained, tiny_cfg, caplog):
     assert chunk._cache_size() == 1
 
 
+def test_programs_are_loaded_not_traced_again(setup, trained, tiny_cfg, fetchq):
+    """The same config's functions made again (as by a later run) load the kept initial-state and chunk programs
+    (``programs.stored``): nothing is traced, the update is bitwise the traced program's, and ``init.abstract``
+    gives the state's shapes."""
+    init, chunk, expert = setup
+    init2, chunk2, _ = train.make_train_fns(tiny_cfg, fetchq, train.fit_normalizer(expert))
+    shapes = init2.abstract(tiny_cfg.seeds, expert)
+    a, ma = chunk(init(tiny_cfg.seeds, expert), expert)
+    b, mb = chunk2(init2(tiny_cfg.seeds, expert), expert)
+    assert chunk2._plain.traces == 0
+    for x, y in zip(jax.tree.leaves((a, ma)), jax.tree.leaves((b, mb))):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert jax.tree.structure(shapes) == jax.tree.structure(a)
+    assert [s.shape for s in jax.tree.leaves(shapes)] == [x.shape for x in jax.tree.leaves(a)]
+
+
 def test_codes_cycle_through_grid(setup, tiny_cfg):
     init, chunk, expert = setup
     state = init(tiny_cfg.seeds, expert)

@@ -202,8 +202,9 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument("--no-compile-cache", action="store_true",
                         help="do not keep compiled programs between runs (by default they are kept in "
                              "$COGAIL_CACHE, else in a JAX_COMPILATION_CACHE_DIR of your own, else in "
-                             "$XDG_CACHE_HOME/cogail/xla or ~/.cache/cogail/xla, and a second run loads them "
-                             "instead of compiling; also COGAIL_NO_COMPILE_CACHE=1)")
+                             "$XDG_CACHE_HOME/cogail/xla or ~/.cache/cogail/xla, with the traced programs in its "
+                             "programs/ folder, and a second run loads them instead of tracing and compiling; "
+                             "also COGAIL_NO_COMPILE_CACHE=1)")
     return p
 
 

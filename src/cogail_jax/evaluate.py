@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .config import TrainConfig
+from .programs import stored
 
 
 EVAL_SEED = 12345  # the interpolation rollouts' initial states: split(PRNGKey(EVAL_SEED), eval_codes), one per code
@@ -187,7 +188,7 @@ def make_replay_fn(cfg: TrainConfig, env, nets):
     extra test sets at the reported checkpoints (``trainer.eval_run``, ``trainer.eval_extra_sets``); with
     ``extra_curves`` ``eval_run`` replays them in the batch of ``make_eval_fn`` instead."""
     episodes = _episodes_fn(cfg, env, nets)
-    run = jax.jit(lambda params, norm, ep: episodes(params, norm, replay_episodes(ep, cfg.code_dim)))
+    run = stored(lambda params, norm, ep: episodes(params, norm, replay_episodes(ep, cfg.code_dim)), "replay", cfg)
 
     def padded(ep):  # recordings padded to the steps the replays run (a host-side shape)
         width = replay_steps(env, np.asarray(jax.device_get(ep["length"])), ep.get("margin"))
@@ -242,7 +243,7 @@ def make_eval_fn(cfg: TrainConfig, env, nets):
                "latent": latent(params, norm, held["obs"], held["prev_ah"], held["length"])}
         return jax.tree.map(lambda x: x.reshape((C, S) + x.shape[1:]), out)
 
-    return jax.jit(evaluate)
+    return stored(evaluate, "evaluate", cfg)
 
 
 def heldout_arrays(demos, patient: bool = False, margin: bool = False) -> dict[str, np.ndarray]:

@@ -20,10 +20,13 @@ class SeedChunk:
       program of the MJX tasks, while their single-device program compiles.
     """
 
-    def __init__(self, fn, multi: str = "shard_map"):
+    def __init__(self, fn, multi: str = "shard_map", key=None):
+        from .programs import stored
+
         self.fn = fn
         self.multi = multi
-        self._plain = jax.jit(fn, donate_argnums=(0,))
+        # one device: the program is kept between runs (programs.stored; ``key``: what ``fn`` closes over)
+        self._plain = jax.jit(fn, donate_argnums=(0,)) if key is None else stored(fn, "chunk", key, (0,))
         self._sharded = {}
         self._pool = None
 

@@ -133,7 +133,7 @@ def load_policy(run_dir: str | Path, cfg: TrainConfig, label: str, which: str = 
         raise RunError(f"{run_dir} has no checkpoints yet: train it first")
     i, step = pick_checkpoint(run_dir, s.cfg, steps, which)
     try:
-        state = ckpt.restore(mgr, step, jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert)))
+        state = ckpt.restore(mgr, step, s.init.abstract(s.cfg.seeds, s.expert))
     except ckpt.CheckpointError as e:
         raise RunError(f"{e}; pass another --checkpoint or --run, or retrain the run")
     one = lambda tree: jax.tree.map(lambda x: x[i], tree)  # noqa: E731

@@ -28,6 +28,7 @@ from . import losses
 from .config import TrainConfig
 from .networks import disc_kind, gaussian_log_prob, history_input, make_networks, normalize
 from .parallel import SeedChunk
+from .programs import stored
 from .rollout import Carry, code_grid, initial_carry, rollout
 
 
@@ -369,9 +370,10 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
     n_demos = int(norm_stats["num_demos"])
     code_init = (jnp.arctanh(jnp.asarray(demo_code_init(norm_stats["features"], cfg.code_dim), jnp.float32))
                  if "features" in norm_stats else jnp.zeros((n_demos, cfg.code_dim)))
-    # made once: every init() call of these functions reuses the compiled programs
-    init_jit = jax.jit(jax.vmap(partial(init_state, ctx, norm, code_init)))
-    bc_jit = jax.jit(jax.vmap(partial(bc_pretrain, ctx), in_axes=(0, None)))
+    # made once: every init() call of these functions reuses the compiled programs, and later runs of the same
+    # config and code load them instead of tracing them again (programs.stored)
+    init_jit = stored(jax.vmap(partial(init_state, ctx, norm, code_init)), "init", (cfg, norm, code_init))
+    bc_jit = stored(jax.vmap(partial(bc_pretrain, ctx), in_axes=(0, None)), "bc", cfg)
 
     def init(seeds, expert, before_bc=None):  # before_bc(state): called with the initial state before BC runs
         state = init_jit(jnp.stack([jax.random.PRNGKey(int(s)) for s in seeds]))
@@ -385,7 +387,13 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         step = jax.vmap(partial(train_step, ctx), in_axes=(0, None))
         return jax.lax.scan(lambda s, _: step(s, expert), state, None, length=cfg.updates_per_call)
 
-    return init, SeedChunk(chunk, cfg.multi_device_mode), ctx.modules
+    def abstract(seeds, expert):  # init's output shapes (from kept programs: no tracing where they are found)
+        key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
+        state = init_jit.eval_shape(jax.ShapeDtypeStruct((len(seeds),) + key.shape, key.dtype))
+        return bc_jit.eval_shape(state, expert)[0] if cfg.bc_steps else state
+
+    init.abstract = abstract
+    return init, SeedChunk(chunk, cfg.multi_device_mode, key=cfg), ctx.modules
 
 
 # ------------------------------------------------------------------------------------------------ normaliser, codes

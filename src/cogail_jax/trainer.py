@@ -220,7 +220,7 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
     cfg = s.cfg
     state, start = None, 0
     if resume:  # restored onto this process's first device, whatever layout saved it; placed below
-        abstract = jax.eval_shape(lambda: s.init(cfg.seeds, s.expert))
+        abstract = s.init.abstract(cfg.seeds, s.expert)
         step, state = ckpt.restore_latest_valid(mgr, abstract)
         if step is not None:
             start = step
@@ -419,9 +419,10 @@ def _extra_set_checkpoints(res: dict) -> dict[str, int]:
 
 
 def _abstract_state(s: Setup):
-    """A zero-argument function giving the shapes of ``s``'s training state (``jax.eval_shape`` of its
-    initialisation: it traces the BC program, so only when a checkpoint is read from disk), computed once."""
-    return functools.cache(lambda: jax.eval_shape(lambda: s.init(s.cfg.seeds, s.expert)))
+    """A zero-argument function giving the shapes of ``s``'s training state (``init.abstract``: from the kept
+    initial-state and BC programs, traced where none is kept; only when a checkpoint is read from disk), computed
+    once."""
+    return functools.cache(lambda: s.init.abstract(s.cfg.seeds, s.expert))
 
 
 def _checkpoint_params(mgr, abstract, memory: dict | None, step: int) -> dict:

@@ -42,7 +42,7 @@ def _run_rollouts(run: Path, num: int, steps: int | None):
     if (run / "results.json").exists():  # the checkpoint selected on validation, and its best seed there
         seed, chosen = evaluate.selected_checkpoint(json.loads((run / "results.json").read_text()))
     si = list(cfg.seeds).index(seed) if seed in cfg.seeds else 0
-    abstract = jax.eval_shape(lambda: s.init(cfg.seeds, s.expert))
+    abstract = s.init.abstract(cfg.seeds, s.expert)
 
     def load(step):
         state = ckpt.restore(mgr, step, abstract)

@@ -13,7 +13,7 @@ EXTRA ?=
 .PHONY: install browser train eval test demos video bench clean help paper
 
 help:
-	@echo "make train [TASK=fetchq|handover|seqmanip] [METHOD=cogail|ma_infogail|ma_gail] [SEEDS=300,400,500] [BUDGET=paper|quick] [RUN=dir]"
+	@echo "make train [TASK=fetchq|handover|seqmanip] [METHOD=cogail|ma_infogail|ma_gail] [SEEDS=300,400,500] [BUDGET=paper|quick|2x] [RUN=dir]"
 	@echo "make eval RUN=dir | make test | make demos TASK=... | make video RUN=dir | make bench"
 	@echo "make paper [TASKS=fetchq,handover,seqmanip] [METHODS=...] | make install [CPU=1] [DRY_RUN=1]"
 

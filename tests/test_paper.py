@@ -212,3 +212,16 @@ def test_shipped_labels_match_the_task_configs():
             assert cfg.get("num_demos") == int(label.split("-")[1]) and not cfg.get("train_varied"), task
         else:
             raise AssertionError(f"{task}: unknown shipped label {label}")
+
+
+def test_every_experiment_config_is_a_valid_train_config():
+    """`make train BUDGET=b` reads experiments/<task>_<b>.json: each must load and validate for its own task."""
+    from cogail_jax.config import TrainConfig
+
+    files = sorted((Path(__file__).parents[1] / "experiments").glob("*_*.json"))
+    assert {f.stem for f in files} >= {"fetchq_paper", "fetchq_quick", "handover_paper", "handover_2x", "seqmanip_paper"}
+    for f in files:
+        d = json.loads(f.read_text())
+        d.pop("_comment", None)
+        cfg = TrainConfig.from_dict(d).validate()
+        assert cfg.task == f.stem.split("_")[0], f.name

@@ -39,7 +39,9 @@ EVAL_PARTS = ("setup", "checkpoints", "extra_sets", "prepared")
 # ``chunk_compile``, the training program's compilation in the background meanwhile (one device, fresh run);
 # ``compile_wait``, how long the bc phase waited for it after BC; ``calls``, the training calls after the first;
 # ``median_call``, their median seconds; ``checkpoint_excess`` / ``other_excess``: the seconds over the median of
-# the calls that copied or queued a checkpoint, and of the others.
+# the calls that copied or queued a checkpoint, and of the others (an upper bound on what checkpoints cost: where
+# the pipelined calls alternate in length, as on a 2-core CPU, the excess mostly measures that; a run with fewer
+# checkpoints measures their cost).
 TRAIN_PARTS = ("bc_run", "chunk_compile", "compile_wait", "calls", "median_call", "checkpoint_excess",
                "other_excess")
 FILE = "speed.json"

@@ -342,7 +342,7 @@ def _dispatch(a) -> int:
         print(f"trained: {run}")
         if a.eval:
             res = eval_run(run, progress=not a.no_progress, robustness=a.robustness, memory=kept,
-                           extra_curves=a.extra_curves, prepared=prep.result())
+                           extra_curves=a.extra_curves, prepared=prep)
             print((Path(run) / "results.md").read_text())
             del res
         return 0

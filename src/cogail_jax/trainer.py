@@ -572,8 +572,8 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     ``memory``: {update: ``eval_params``} kept by the training loop (``train_run(..., keep=...)``): those
     checkpoints are not read back from disk (the same values: the results are the same).
 
-    ``prepared``: the run's ``EvalInputs`` made already (``EvalPrep``, while training ran; its extra sets and
-    ``extra_curves`` then stand for the arguments').
+    ``prepared``: the run's ``EvalInputs`` made already, or the ``EvalPrep`` making them while training runs (waited
+    for in the eval phase's set-up); its extra sets and ``extra_curves`` then stand for the arguments'.
 
     The seconds spent evaluating and writing replace the ``eval`` and ``write`` phases of RUN/speed.json."""
     clock, part_clock = timing.Phases(), timing.Phases()
@@ -586,6 +586,8 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
             steps = _checkpoints_to_evaluate(mgr, every)
             if not steps:
                 raise RunError(f"{run_dir} has no checkpoints yet: train it first")
+            if hasattr(prepared, "result"):  # an EvalPrep still at work: the eval phase pays for the wait
+                prepared = prepared.result()
             inp = prepared or _eval_inputs(run_dir, _extra_sets(extra_sets, replay_file), robustness, extra_curves)
             s, sets, eps, part = inp.s, inp.sets, inp.eps, inp.part
             abstract = _abstract_state(s)

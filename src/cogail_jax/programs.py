@@ -12,6 +12,7 @@ runs as plain ``jax.jit``.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -127,13 +128,14 @@ def _write(path: Path | None, exp, out_tree) -> None:
     later process the trace."""
     if path is None:
         return
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}")
         tmp.write_bytes(pickle.dumps((bytes(exp.serialize()), out_tree)))
         os.replace(tmp, path)
     except Exception:  # noqa: BLE001
-        pass
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
 
 
 class _Program:

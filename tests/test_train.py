@@ -68,6 +68,16 @@ def test_programs_are_loaded_not_traced_again(setup, trained, tiny_cfg, fetchq):
     assert [s.shape for s in jax.tree.leaves(shapes)] == [x.shape for x in jax.tree.leaves(a)]
 
 
+def test_abstract_state_after_bc_matches_eval_shape(tiny_cfg, fetchq, setup):
+    """``init.abstract`` with BC pre-training: the BC program's output shapes, as ``jax.eval_shape`` of ``init``."""
+    _, _, expert = setup
+    cfg = tiny_cfg.replace(bc_steps=2)
+    init, _, _ = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
+    got, want = init.abstract(cfg.seeds, expert), jax.eval_shape(lambda: init(cfg.seeds, expert))
+    assert jax.tree.structure(got) == jax.tree.structure(want)
+    assert [(x.shape, x.dtype) for x in jax.tree.leaves(got)] == [(x.shape, x.dtype) for x in jax.tree.leaves(want)]
+
+
 def test_codes_cycle_through_grid(setup, tiny_cfg):
     init, chunk, expert = setup
     state = init(tiny_cfg.seeds, expert)

@@ -203,6 +203,46 @@ def test_resume_is_exact(tiny_cfg, tmp_path):
     assert parts["median_call"] > 0 and parts["checkpoint_excess"] >= 0 and parts["other_excess"] >= 0
 
 
+def test_policy_average_is_delivered_and_leaves_training_alone(setup, tiny_cfg, fetchq, tmp_path):
+    """``policy_ema``: the moving average of the actor and psi starts at the (BC'd) networks, follows them with its
+    decay, is what evaluation reads, survives resume bitwise, and does not change what is trained."""
+    from cogail_jax.config import ConfigError
+
+    init, chunk, expert = setup
+    ref, _ = chunk(init(tiny_cfg.seeds, expert), expert)
+    assert "ema" not in ref.params  # off: the state (and its checkpoints) as before
+    cfg = tiny_cfg.replace(policy_ema=0.5)
+    init_e, chunk_e, _ = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
+    s0 = init_e(cfg.seeds, expert)
+    for k in ("actor", "psi"):
+        for x, y in zip(jax.tree.leaves(s0.params["ema"][k]), jax.tree.leaves(s0.params[k])):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    flat = lambda tree: np.concatenate([np.ravel(x) for x in jax.tree.leaves(jax.device_get(tree))])  # noqa: E731
+    a0 = flat(s0.params["actor"])  # the chunk donates its input state
+    s1, _ = chunk_e(s0, expert)
+    trained = {k: v for k, v in s1.params.items() if k != "ema"}
+    for x, y in zip(jax.tree.leaves(jax.device_get(trained)), jax.tree.leaves(jax.device_get(ref.params))):
+        np.testing.assert_allclose(x, y, rtol=1e-6, atol=1e-7)
+    a1, e1 = flat(s1.params["actor"]), flat(s1.params["ema"]["actor"])
+    assert 0 < np.abs(e1 - a0).max() and 0 < np.abs(e1 - a1).max()  # moved towards the trained actor, not onto it
+    assert np.abs(e1 - a1).max() < np.abs(a0 - a1).max()
+    np.testing.assert_array_equal(flat(trainer.eval_params(s1)["params"]["actor"]), e1)  # evaluation (and play, video) act with the average
+
+    one = {"actor": {"w": np.float32(2.0)}, "psi": {"w": np.float32(4.0)}}  # the update rule itself
+    stepped = train.ema_update(cfg, {"actor": {"w": np.float32(0.0)}, "psi": {"w": np.float32(0.0)}, "ema": one})
+    assert float(stepped["ema"]["actor"]["w"]) == 1.0 and float(stepped["ema"]["psi"]["w"]) == 2.0
+    assert train.policy_params(stepped)["actor"] is stepped["ema"]["actor"]
+
+    small = cfg.replace(total_steps=4 * 16 * 4)  # resume keeps the average bitwise
+    full = trainer.train_run(small, tmp_path / "full", progress=False)
+    part = trainer.train_run(small, tmp_path / "part", progress=False, stop_after=2)
+    trainer.train_run(small, tmp_path / "part", resume=True, progress=False)
+    for x, y in zip(_final_params(full, small)[1], _final_params(part, small)[1]):
+        np.testing.assert_array_equal(x, y)
+    with pytest.raises(ConfigError, match="policy_ema"):
+        tiny_cfg.replace(policy_ema=1.0).validate()
+
+
 def test_bc_pretraining_beats_untrained_policy(tiny_cfg, fetchq):
     from cogail_jax import evaluate
 

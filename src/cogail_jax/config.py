@@ -64,6 +64,10 @@ class TrainConfig:
     # lambda_r, whose separate Adam step is scale-free per tower, this weight sets the balance against the
     # discriminator's policy gradient inside one optimizer step (README, "HR-SeqManip")
     bc_coef: float = 0.0
+    # the delivered policy (our addition, 0 = off): an exponential moving average of the co-policy's and psi's
+    # parameters, updated after every update with this decay; checkpoints keep it beside the trained parameters,
+    # and evaluation, play and video act with it (the average of a GAN's generator over its last iterates)
+    policy_ema: float = 0.0
     obs_std_floor: float = 1e-2  # floor of the observation normaliser's std (0.1 for the MJX tasks' configs)
     # discriminator
     disc_loss: str = "auto"  # "bce" | "lsgan" | "auto" (the task's: bce for fetchq, lsgan for manipulation)
@@ -170,6 +174,8 @@ class TrainConfig:
                               "on your file alone")
         if self.policy_cooldown < 0:
             raise ConfigError(f"policy_cooldown must be >= 0, got {self.policy_cooldown}")
+        if not 0 <= self.policy_ema < 1:
+            raise ConfigError(f"policy_ema must be in [0, 1) (a decay per update; 0 = off), got {self.policy_ema}")
         if self.bc_coef < 0:
             raise ConfigError(f"bc_coef must be >= 0, got {self.bc_coef}")
         if self.history < 0 or self.bc_steps < 0:

@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import checkpoint as ckpt
-from . import data, evaluate
+from . import data, evaluate, train
 from .config import ConfigError, TrainConfig
 from .trainer import RunError
 
@@ -138,7 +138,7 @@ def load_policy(run_dir: str | Path, cfg: TrainConfig, label: str, which: str = 
         raise RunError(f"{e}; pass another --checkpoint or --run, or retrain the run")
     one = lambda tree: jax.tree.map(lambda x: x[i], tree)  # noqa: E731
     _, robot_step = evaluate.make_robot_step(s.cfg, s.env, s.nets)
-    policy = Policy(label, run_dir, cfg.method, int(cfg.seeds[i]), int(step), cfg.history, one(state.params),
+    policy = Policy(label, run_dir, cfg.method, int(cfg.seeds[i]), int(step), cfg.history, one(train.policy_params(state.params)),
                     one(state.norm), jax.jit(robot_step))
     return policy, s.env
 

@@ -134,6 +134,7 @@ def init_state(ctx: Context, norm: dict, code_init, rng) -> TrainState:
         "disc": mods["disc"].init(k_d, jnp.zeros((1, d + env.action_size))),
     }
     c = initial_carry(cfg, env, k_env, k_z)
+    params = with_ema_start(cfg, params)
     state = TrainState(
         params=params,
         ppo_opt=ctx.ppo_tx.init({"actor": params["actor"], "critic": params["critic"]}),
@@ -145,6 +146,32 @@ def init_state(ctx: Context, norm: dict, code_init, rng) -> TrainState:
         env_state=None, z=None, hist=None, prev_ah=None, code_counter=None,
         rng=rng, update=jnp.zeros((), jnp.int32))
     return state.with_carry(c)
+
+
+# ------------------------------------------------------------------------------------------------ policy average
+EMA_PARAMS = ("actor", "psi")  # what the delivered policy averages (config.policy_ema)
+
+
+def with_ema_start(cfg: TrainConfig, params: dict) -> dict:
+    """``params`` with the moving average (``params["ema"]``) restarted at the current actor and psi."""
+    if not cfg.policy_ema:
+        return params
+    return {**params, "ema": {k: params[k] for k in EMA_PARAMS}}
+
+
+def ema_update(cfg: TrainConfig, params: dict) -> dict:
+    """One step of the moving average towards the current actor and psi (no-op when ``policy_ema`` is 0)."""
+    if not cfg.policy_ema:
+        return params
+    d = cfg.policy_ema
+    ema = jax.tree.map(lambda e, p: d * e + (1.0 - d) * p, params["ema"], {k: params[k] for k in EMA_PARAMS})
+    return {**params, "ema": ema}
+
+
+def policy_params(params: dict) -> dict:
+    """The parameters the delivered policy acts with: the moving average's actor and psi where the run keeps one
+    (``policy_ema``), else the trained ones."""
+    return {**params, **params["ema"]} if "ema" in params else params
 
 
 # ------------------------------------------------------------------------------------------------ BC
@@ -165,7 +192,8 @@ def bc_pretrain(ctx: Context, state: TrainState, expert):
         return (optax.apply_updates(sub, upd), opt), loss
 
     (sub, _), bc_losses = jax.lax.scan(body, (sub, tx.init(sub)), jax.random.split(key, cfg.bc_steps))
-    return state.replace(params={**state.params, **sub}, rng=rng), bc_losses[-1]
+    params = {**state.params, **sub}
+    return state.replace(params=with_ema_start(cfg, params), rng=rng), bc_losses[-1]
 
 
 def bc_step(ctx: Context, state: TrainState, expert):
@@ -183,7 +211,8 @@ def bc_step(ctx: Context, state: TrainState, expert):
     sub = {"actor": state.params["actor"], "psi": state.params["psi"], "codes": state.params["codes"]}
     keys = jax.random.split(key, cfg.ppo_epochs * cfg.num_minibatches)
     (sub, opt), bc = jax.lax.scan(body, (sub, state.aux_opt), keys)
-    state = state.replace(params={**state.params, **sub}, aux_opt=opt, rng=rng, update=state.update + 1)
+    params = ema_update(cfg, {**state.params, **sub})
+    state = state.replace(params=params, aux_opt=opt, rng=rng, update=state.update + 1)
     return state, {"bc_loss": bc.mean(), "nonfinite": (~all_finite(state.params)).astype(jnp.float32)}
 
 
@@ -353,6 +382,7 @@ def train_step(ctx: Context, state: TrainState, expert):
     adv, ret = losses.gae(r_norm, traj["value"], traj["done"], traj["truncation"], traj["final_value"], last_value,
                           cfg.gamma, cfg.gae_lambda, cfg.scan_unroll)
     state, ppo_m = ppo_update(ctx, state, traj, adv, ret, k_ppo, expert)
+    state = state.replace(params=ema_update(cfg, state.params))
     episodes = traj["done"].sum()
     metrics = {**inner_m, **ppo_m, "reward": r_raw.mean(), "episodes": episodes,
                "episode_success": traj["success"].sum() / jnp.maximum(episodes, 1.0),

@@ -269,7 +269,8 @@ EVAL_PARAMS = ("actor", "psi")  # what evaluating a checkpoint reads of its para
 def eval_params(state) -> dict:
     """What evaluating a checkpoint reads of its state: the actor's and psi's parameters and the observation
     normaliser (seed axis first), on this process's first device, as ``checkpoint.restore`` puts them."""
-    sub = {"params": {k: state.params[k] for k in EVAL_PARAMS}, "norm": state.norm}
+    policy = train.policy_params(state.params)
+    sub = {"params": {k: policy[k] for k in EVAL_PARAMS}, "norm": state.norm}
     return jax.device_put(sub, jax.devices()[0])
 
 
@@ -641,7 +642,8 @@ def _eval_inputs(run_dir: Path, sets: dict[str, str], robustness: bool, extra_cu
 def _eval_struct(state) -> dict:
     """The shapes of ``eval_params(state)`` (on this process's first device, as it puts them)."""
     dev = jax.sharding.SingleDeviceSharding(jax.devices()[0])
-    sub = {"params": {k: state.params[k] for k in EVAL_PARAMS}, "norm": state.norm}
+    policy = train.policy_params(state.params)
+    sub = {"params": {k: policy[k] for k in EVAL_PARAMS}, "norm": state.norm}
     return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=dev), sub)
 
 

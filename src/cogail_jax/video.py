@@ -28,7 +28,7 @@ def _rollout_states(env, policy, init_states, T):
 def _run_rollouts(run: Path, num: int, steps: int | None):
     """(env, [(interpolation states, T), (replay states, T)]) for a trained run."""
     from . import checkpoint as ckpt
-    from . import evaluate, trainer
+    from . import evaluate, train, trainer
     from .config import TrainConfig
 
     cfg = TrainConfig.load(run / "config.json")
@@ -46,7 +46,7 @@ def _run_rollouts(run: Path, num: int, steps: int | None):
 
     def load(step):
         state = ckpt.restore(mgr, step, abstract)
-        return jax.tree.map(lambda x: x[si], state.params), jax.tree.map(lambda x: x[si], state.norm)
+        return jax.tree.map(lambda x: x[si], train.policy_params(state.params)), jax.tree.map(lambda x: x[si], state.norm)
 
     T = min(env.max_episode_steps, steps or env.max_episode_steps)
     actor = s.nets["actor"].apply

@@ -192,9 +192,21 @@ def fig3_png(results: dict, methods, path: Path) -> bool:
     return True
 
 
-SHIPPED = {"fetchq": "train-varied-20", "handover": "train-varied-20", "seqmanip": "shipped-1000-demos"}
+SHIPPED = {"fetchq": "train-varied-20", "handover": "train-varied-10-policy-ema", "seqmanip": "1000-demos-policy-ema"}
 """The variant label whose run has the settings ``make train TASK=...`` uses (experiments/<task>_paper.json), where
 they differ from the main table's (which trains every method on the team demonstrations alone)."""
+BUDGETS = {"handover": {"2x": "2x-train-varied-10-policy-ema"}}
+"""The variant labels of the larger budgets ``make train TASK=... BUDGET=b`` trains (experiments/<task>_<b>.json)."""
+
+
+def shipped_runs():
+    """(task, budget, label) of every configuration ``make train`` ships, the paper budget's first."""
+    runs = [(t, "paper", label) for t, label in SHIPPED.items()]
+    return runs + [(t, b, label) for t, labels in BUDGETS.items() for b, label in labels.items()]
+
+
+def _shipped_labels(task: str) -> set:
+    return {label for t, _, label in shipped_runs() if t == task}
 
 
 def curves_png(results: dict, path: Path, method: str = "cogail") -> bool:
@@ -203,7 +215,7 @@ def curves_png(results: dict, path: Path, method: str = "cogail") -> bool:
     validation dotted."""
     def shown(k):
         parts = k.split("/")
-        return (parts[1] == method and parts[2] == "uniform" and (len(parts) == 3 or parts[3] == SHIPPED.get(parts[0]))
+        return (parts[1] == method and parts[2] == "uniform" and (len(parts) == 3 or parts[3] in _shipped_labels(parts[0]))
                 and bool((results[k].get("curves") or {}).get("replay_success")))
 
     keys = sorted(k for k in results if shown(k))
@@ -270,7 +282,7 @@ def robustness_rows(results: dict, tasks, methods, prefix: str = "robust-", base
              + " | worst / in-distribution |", "| --- | --- | --- |" + " --- |" * (len(var) + 1)]
     if keys is None:
         rows = [(t, m, f"{t}/{m}/uniform") for t in tasks for m in methods]
-        rows += [(t, f"cogail ({SHIPPED[t]})", f"{t}/cogail/uniform/{SHIPPED[t]}") for t in tasks if t in SHIPPED]
+        rows += [(t, f"cogail ({label})", f"{t}/cogail/uniform/{label}") for t, _, label in shipped_runs() if t in tasks]
         rows.sort(key=lambda x: tasks.index(x[0]))
     else:
         rows = [(k.split("/")[0], "/".join(k.split("/")[1:]), k) for k in keys]
@@ -320,14 +332,18 @@ def shipped_rows(results: dict) -> list[str]:
     interpolation on test at the checkpoint selected on validation, by the paper's protocol and at the last one."""
     lines = ["| task (run) | replay: selected | replay: paper protocol | replay: last | interpolation: selected "
              "| interpolation: paper protocol | interpolation: last |", "| --- | --- | --- | --- | --- | --- | --- |"]
-    for t in ("fetchq", "handover", "seqmanip"):
-        key = next((k for k in (f"{t}/cogail/uniform/{SHIPPED.get(t)}", f"{t}/cogail/uniform") if k in results), None)
+    runs = [(t, "paper", SHIPPED.get(t)) for t in ("fetchq", "handover", "seqmanip")]
+    runs += sorted((t, b, label) for t, b, label in shipped_runs() if b != "paper")
+    for t, budget, label in runs:
+        keys = (f"{t}/cogail/uniform/{label}",) + ((f"{t}/cogail/uniform",) if budget == "paper" else ())
+        key = next((k for k in keys if k in results), None)
         r = results.get(key) or {}
         if not r.get("paper_protocol") or not r.get("last"):
             continue
         cells = [c for col in ("replay", "interpolation")
                  for c in (fmt(r["selected"][col]), fmt(r["paper_protocol"][col]), fmt(r["last"][col]))]
-        lines.append(f"| {t} ({'/'.join(key.split('/')[3:]) or 'main table'}) | " + " | ".join(cells) + " |")
+        name = f"{t}, BUDGET={budget}" if budget != "paper" else t
+        lines.append(f"| {name} ({'/'.join(key.split('/')[3:]) or 'main table'}) | " + " | ".join(cells) + " |")
     return lines if len(lines) > 2 else []
 
 

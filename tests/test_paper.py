@@ -150,7 +150,8 @@ def test_readme_shows_the_shipped_settings_with_their_last_checkpoint_and_robust
     results = {"fetchq/cogail/uniform": {**_res(0.55, 0.6), **var},
                f"fetchq/cogail/uniform/{paper.SHIPPED['fetchq']}": {**_res(0.6, 0.7), **var,
                                                                      "last": {"replay": _s(0.5), "interpolation": _s(0.3)}},
-               "handover/cogail/uniform": _res(0.4, 0.45)}
+               "handover/cogail/uniform": _res(0.4, 0.45),
+               f"handover/cogail/uniform/{paper.BUDGETS['handover']['2x']}": {**_res(0.7, 0.8), **var}}
     out, readme = tmp_path / "out", tmp_path / "README.md"
     out.mkdir()
     (out / "paper.json").write_text(json.dumps(results))
@@ -160,6 +161,7 @@ def test_readme_shows_the_shipped_settings_with_their_last_checkpoint_and_robust
     assert (f"| fetchq ({paper.SHIPPED['fetchq']}) | 60.0 +- 1.0 | 70.0 +- 2.0 | 50.0 +- 1.0 | 10.0 +- 1.0 | "
             "20.0 +- 2.0 | 30.0 +- 1.0 |") in doc
     assert "| handover (main table) | 40.0 +- 1.0 | 45.0 +- 2.0 | 40.0 +- 1.0 |" in doc
+    assert f"| handover, BUDGET=2x ({paper.BUDGETS['handover']['2x']}) | 70.0 +- 1.0 | 80.0 +- 2.0 |" in doc  # a larger budget
     assert f"| fetchq | cogail ({paper.SHIPPED['fetchq']}) | 60.0 | 45.0 | 30.0 | 0.50 |" in doc
     assert "| fetchq | cogail | 55.0 | 45.0 | 30.0 | 0.55 |" in doc
     assert "patient" not in (out / "robustness.md").read_text()
@@ -202,16 +204,21 @@ def test_variants_are_compared_on_the_validation_humans(tmp_path):
 
 
 def test_shipped_labels_match_the_task_configs():
-    """SHIPPED names, per task, the variant with experiments/<task>_paper.json's settings: keep them in step."""
+    """SHIPPED and BUDGETS name, per task and budget, the variant with experiments/<task>_<budget>.json's settings:
+    keep them in step (the label's parts: train-varied-N, N-demos, policy-ema, the budget)."""
+    import re
+
     root = Path(__file__).parents[1] / "experiments"
-    for task, label in paper.SHIPPED.items():
-        cfg = json.loads((root / f"{task}_paper.json").read_text())
-        if label.startswith("train-varied-"):
-            assert cfg.get("train_varied") == int(label.rsplit("-", 1)[1]), task
-        elif label.startswith("shipped-") and label.endswith("-demos"):
-            assert cfg.get("num_demos") == int(label.split("-")[1]) and not cfg.get("train_varied"), task
-        else:
-            raise AssertionError(f"{task}: unknown shipped label {label}")
+    runs = paper.shipped_runs()
+    assert {t for t, b, _ in runs if b == "paper"} == {"fetchq", "handover", "seqmanip"}
+    for task, budget, label in runs:
+        cfg = json.loads((root / f"{task}_{budget}.json").read_text())
+        varied = re.search(r"train-varied-(\d+)", label)
+        assert cfg.get("train_varied", 0) == (int(varied.group(1)) if varied else 0), (task, label)
+        demos = re.search(r"(\d+)-demos", label)
+        assert cfg.get("num_demos", 0) == (int(demos.group(1)) if demos else 0), (task, label)
+        assert bool(cfg.get("policy_ema")) == ("policy-ema" in label), (task, label)
+        assert (budget == "paper") == (not label.startswith(budget)), (task, label)
 
 
 def test_every_experiment_config_is_a_valid_train_config():

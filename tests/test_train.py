@@ -239,6 +239,8 @@ def test_policy_average_is_delivered_and_leaves_training_alone(setup, tiny_cfg, 
     trainer.train_run(small, tmp_path / "part", resume=True, progress=False)
     for x, y in zip(_final_params(full, small)[1], _final_params(part, small)[1]):
         np.testing.assert_array_equal(x, y)
+    res = trainer.eval_run(full, progress=False)  # the report says which policy it evaluated
+    assert res["policy_ema"] == 0.5 and "moving average" in (full / "results.md").read_text()
     with pytest.raises(ConfigError, match="policy_ema"):
         tiny_cfg.replace(policy_ema=1.0).validate()
 

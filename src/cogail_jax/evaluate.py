@@ -499,7 +499,9 @@ def results_markdown(res: dict) -> str:
         "",
         ("Selected: " + SELECTION_RULE + ". " if sel else "No validation set was evaluated: no selected checkpoint. ")
         + f"The breakdowns below are at checkpoint {res['breakdowns_at']['checkpoint']} "
-        f"({res['breakdowns_at']['basis']}).",
+        f"({res['breakdowns_at']['basis']})."
+        + (f" Every checkpoint acts with the moving average of its trained co-policy and psi (policy_ema "
+           f"{res['policy_ema']})." if res.get("policy_ema") else ""),
         "",
         "Strategies among successful interpolation rollouts:",
         "",

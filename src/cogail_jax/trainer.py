@@ -803,6 +803,8 @@ def _summarize(s: Setup, per_ckpt: dict, codes, part: dict):
                      for name in ("test", "validation")}
     if cfg.train_varied:  # the varied-human sets then hold kinds of person the robot was trained on
         res["train_varied"] = int(cfg.train_varied)
+    if cfg.policy_ema:  # what was evaluated: the moving average of the trained networks
+        res["policy_ema"] = float(cfg.policy_ema)
     at = per_ckpt[res["breakdowns_at"]["checkpoint"]]  # the selected checkpoint
     i0 = int(np.argmax(at["val_replay_success"].mean(1)))  # latent map: the seed best on validation there
     lat = at["latent"][i0] if cfg.use_code else None

@@ -138,8 +138,8 @@ def load_policy(run_dir: str | Path, cfg: TrainConfig, label: str, which: str = 
         raise RunError(f"{e}; pass another --checkpoint or --run, or retrain the run")
     one = lambda tree: jax.tree.map(lambda x: x[i], tree)  # noqa: E731
     _, robot_step = evaluate.make_robot_step(s.cfg, s.env, s.nets)
-    policy = Policy(label, run_dir, cfg.method, int(cfg.seeds[i]), int(step), cfg.history, one(train.policy_params(state.params)),
-                    one(state.norm), jax.jit(robot_step))
+    policy = Policy(label, run_dir, cfg.method, int(cfg.seeds[i]), int(step), cfg.history,
+                    one(train.policy_params(state.params)), one(state.norm), jax.jit(robot_step))
     return policy, s.env
 
 

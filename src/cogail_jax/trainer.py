@@ -266,12 +266,16 @@ def _postfix(metrics: dict, stats: LoopStats) -> dict:
 EVAL_PARAMS = ("actor", "psi")  # what evaluating a checkpoint reads of its parameters
 
 
+def _eval_tree(state) -> dict:
+    """The delivered policy's actor and psi (``train.policy_params``) and the observation normaliser of ``state``."""
+    policy = train.policy_params(state.params)
+    return {"params": {k: policy[k] for k in EVAL_PARAMS}, "norm": state.norm}
+
+
 def eval_params(state) -> dict:
     """What evaluating a checkpoint reads of its state: the actor's and psi's parameters and the observation
     normaliser (seed axis first), on this process's first device, as ``checkpoint.restore`` puts them."""
-    policy = train.policy_params(state.params)
-    sub = {"params": {k: policy[k] for k in EVAL_PARAMS}, "norm": state.norm}
-    return jax.device_put(sub, jax.devices()[0])
+    return jax.device_put(_eval_tree(state), jax.devices()[0])
 
 
 def _check_and_log(writers, metrics, update0: int, cfg: TrainConfig, saver) -> dict:
@@ -642,9 +646,7 @@ def _eval_inputs(run_dir: Path, sets: dict[str, str], robustness: bool, extra_cu
 def _eval_struct(state) -> dict:
     """The shapes of ``eval_params(state)`` (on this process's first device, as it puts them)."""
     dev = jax.sharding.SingleDeviceSharding(jax.devices()[0])
-    policy = train.policy_params(state.params)
-    sub = {"params": {k: policy[k] for k in EVAL_PARAMS}, "norm": state.norm}
-    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=dev), sub)
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=dev), _eval_tree(state))
 
 
 def _compile_eval(inp: EvalInputs, struct: dict, checkpoints: int) -> None:

@@ -46,7 +46,8 @@ def _run_rollouts(run: Path, num: int, steps: int | None):
 
     def load(step):
         state = ckpt.restore(mgr, step, abstract)
-        return jax.tree.map(lambda x: x[si], train.policy_params(state.params)), jax.tree.map(lambda x: x[si], state.norm)
+        params = train.policy_params(state.params)
+        return jax.tree.map(lambda x: x[si], params), jax.tree.map(lambda x: x[si], state.norm)
 
     T = min(env.max_episode_steps, steps or env.max_episode_steps)
     actor = s.nets["actor"].apply

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cogail_jax import checkpoint as ckpt
-from cogail_jax import data, timing, train, trainer
+from cogail_jax import data, tblog, timing, train, trainer
 
 
 @pytest.fixture(scope="module")
@@ -188,6 +188,9 @@ def test_resume_is_exact(tiny_cfg, tmp_path):
     assert set(res["per_seed_best"]["replay"]["checkpoint"]) == {"3", "5"}
     assert (full / "results.md").read_text().startswith("# cogail on fetchq")
     assert (full / "strategy_distribution.png").exists() and (full / "latent_map.png").exists()
+    ts = res["training_success"]  # the co-policy's own episodes from the TensorBoard logs (none ends in so few steps)
+    assert ts["checkpoints"] == res["checkpoints"] and all(r is None or 0 <= r <= 1 for r in ts["mean"])
+    assert tblog.training_success(part, tiny_cfg.seeds, tiny_cfg.steps_per_update, res["checkpoints"]) == ts
 
     # RUN/speed.json: every phase of the training and of the evaluation, in seconds
     speed = json.loads((full / "speed.json").read_text())

@@ -473,6 +473,18 @@ def extra_set_markdown(name: str, e: dict) -> list[str]:
     return lines
 
 
+def _training_success_line(ts: dict | None) -> list[str]:
+    """One sentence on the co-policy's success in its own training episodes (``trainer``'s ``training_success``)."""
+    cs = ts["checkpoints"] if ts else []
+    spans = [(a + 1, c, r) for a, c, r in zip([0] + cs[:-1], cs, ts["mean"]) if r is not None] if ts else []
+    if not spans:
+        return []
+    (a0, c0, r0), (a1, c1, r1) = spans[0], spans[-1]
+    return ["", f"The co-policy's own training episodes (both agents the co-policy) succeeded {100 * r0:.1f} % over "
+            f"updates {a0}-{c0} and {100 * r1:.1f} % over updates {a1}-{c1} (mean over seeds; every interval between "
+            "checkpoints: results.json's training_success)."]
+
+
 def results_markdown(res: dict) -> str:
     if "paper_protocol" not in res:  # results written before the reporting protocol
         return _results_markdown_per_seed(res)
@@ -502,6 +514,7 @@ def results_markdown(res: dict) -> str:
         f"({res['breakdowns_at']['basis']})."
         + (f" Every checkpoint acts with the moving average of its trained co-policy and psi (policy_ema "
            f"{res['policy_ema']})." if res.get("policy_ema") else ""),
+        *_training_success_line(res.get("training_success")),
         "",
         "Strategies among successful interpolation rollouts:",
         "",

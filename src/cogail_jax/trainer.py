@@ -17,7 +17,7 @@ import jax
 import numpy as np
 
 from . import checkpoint as ckpt
-from . import data, evaluate, timing, train
+from . import data, evaluate, tblog, timing, train
 from .config import ConfigError, TrainConfig
 
 
@@ -602,6 +602,9 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
             if not per_ckpt:
                 raise ckpt.nothing_restored(mgr, run_dir)
             res, at, lat = _summarize(s, per_ckpt, codes, part)
+            train_succ = tblog.training_success(run_dir, s.cfg.seeds, s.cfg.steps_per_update, res["checkpoints"])
+            if train_succ is not None:  # the co-policy's own training episodes, from the run's TensorBoard logs
+                res["training_success"] = train_succ
             if sets and inp.extra_curves:
                 res["extra_sets"] = _extra_sets_results(s, per_ckpt, res, eps, sets)
         with part_clock("extra_sets"):

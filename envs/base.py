@@ -51,6 +51,9 @@ class CollabEnv(Env):
     init_size: int = 0
     strategy_names: Sequence[str] = ()
     discriminator_loss: str = "lsgan"  # "bce" for fetchq, "lsgan" for the manipulation tasks
+    # team_init takes ``variation | teams.FOLLOWING_PARTNER``: a scripted robot that follows the human's apparent
+    # strategy under a change of mind (the training sets' varied humans; envs/teams/__init__.py)
+    partner_can_follow: bool = False
 
     @property
     def action_size(self) -> int:

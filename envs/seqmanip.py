@@ -193,6 +193,7 @@ class SeqManip(CollabEnv):
     """
 
     name = "seqmanip"
+    partner_can_follow = True
     human_action_size = 7
     robot_action_size = 7
     max_episode_steps = 600

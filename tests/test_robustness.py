@@ -213,7 +213,35 @@ def test_varied_training_set_adds_validated_varied_humans_to_the_team(fetchq, fq
     assert np.all(rep["success"] > 0)
     test_inits = np.concatenate([load_demos(p, fetchq, require_init=True).init for p in fq_sets.values()])
     assert not any(np.any(np.all(np.isclose(test_inits, x), axis=1)) for x in d.init[added])
+    with h5py.File(path, "r") as f:
+        assert not bool(f.attrs["following_partner"])  # fetchq's scripted robot has no following mode
+    with pytest.raises(ValueError, match="following mode"):
+        rb.generate_varied(fetchq, "change_of_mind", 1, following_partner=True)
     with pytest.raises(ConfigError, match="train_varied"):
         TrainConfig(train_varied=-1).validate()
     with pytest.raises(ConfigError, match="--demos"):
         TrainConfig(train_varied=2, demos="mine.hdf5").validate()
+
+
+@pytest.mark.skipif(not os.environ.get("COGAIL_SLOW_TESTS"),
+                    reason="seqmanip: set COGAIL_SLOW_TESTS=1 (600-step MJX compile)")
+def test_following_partner_guesses_then_recovers(tmp_path):
+    """seqmanip's training change of mind: the same humans (same draws), a robot that starts on the strategy the
+    human's first leg suggests -- its actions part from the plan-reading robot's before the human's do -- and
+    episodes that still succeed with the human's strategy and validate by re-simulation."""
+    import cogail_envs
+
+    env = cogail_envs.make_env("seqmanip")
+    plan, _ = rb.generate_varied(env, "change_of_mind", 4, split="train", batch=5, max_attempts=5)
+    follow, stats = rb.generate_varied(env, "change_of_mind", 4, split="train", batch=5, max_attempts=5,
+                                       following_partner=True)
+    assert stats["kept"] == 4 and np.array_equal(plan.gen_index, follow.gen_index)
+    assert np.array_equal(plan.strategy, follow.strategy) and np.array_equal(follow.executed, follow.strategy)
+    early = 0
+    for i in range(4):
+        d_r = np.abs(plan.actions_robot[i] - follow.actions_robot[i]).max(-1) > 1e-6
+        d_h = np.abs(plan.actions_human[i] - follow.actions_human[i]).max(-1) > 1e-6
+        early += bool(d_r.any() and (not d_h.any() or np.argmax(d_r) < np.argmax(d_h)))
+    assert early >= 3
+    rep = rb.validate_episodes(env, follow.init, follow.actions_human, follow.actions_robot, 5)
+    assert np.all(rep["success"] > 0) and np.array_equal(rep["executed"], follow.strategy)

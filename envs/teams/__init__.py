@@ -17,6 +17,12 @@ the ones the default team uses). The ids, in order (``VARIATIONS[i - 1]`` is id 
 * ``change_of_mind`` -- the human first heads for another strategy's target for a while, then does its own.
 
 What each means per task is in the task's team module.
+
+``variation | FOLLOWING_PARTNER`` (teams whose module sets ``FOLLOWS_PARTNER = True``: seqmanip) changes the
+scripted ROBOT instead of reading the team's plan: under ``change_of_mind`` it first takes the strategy the
+human's moves suggest and switches when the human turns to its own, as a partner who cannot read minds does.
+Training sets use it (``robustness.ensure_varied_training_set``) so that the demonstrations show a robot
+recovering from a wrong guess; the test and validation humans are recorded with the robot that reads the plan.
 """
 from __future__ import annotations
 
@@ -25,6 +31,7 @@ import jax.numpy as jnp
 
 VARIATIONS = ("slow", "fast", "pauses", "detour", "noise", "change_of_mind")
 NONE, SLOW, FAST, PAUSES, DETOUR, NOISE, CHANGE_OF_MIND = range(7)
+FOLLOWING_PARTNER = 8  # flag bit on a variation id: the scripted robot follows the human's apparent strategy
 
 # salt for the variation's own random draws (fold_in of the team key): the default draws stay as they were
 VARIATION_SALT = 7_777
@@ -63,5 +70,5 @@ def paused(starts: jax.Array, lens: jax.Array, t: jax.Array) -> jax.Array:
     return jnp.any((t >= starts) & (t < starts + lens))
 
 
-__all__ = ["VARIATIONS", "NONE", "SLOW", "FAST", "PAUSES", "DETOUR", "NOISE", "CHANGE_OF_MIND",
+__all__ = ["VARIATIONS", "FOLLOWING_PARTNER", "NONE", "SLOW", "FAST", "PAUSES", "DETOUR", "NOISE", "CHANGE_OF_MIND",
            "variation_id", "pace_factor", "pause_schedule", "paused"]

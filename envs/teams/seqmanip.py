@@ -37,6 +37,12 @@ Variations of the human (:mod:`cogail_envs.teams`; the robot is unchanged):
 * change_of_mind: after lifting the bar, the human first carries it towards the other strategy's first
   sub-goal (s1: the waiting point by the drawer; s2: the handover spot) and holds it there (35-60 steps
   in all), then to its own.
+
+With ``variation | FOLLOWING_PARTNER`` the robot does not read the plan under change_of_mind: it takes the
+strategy the human's first leg suggests (its cue: the human with the bar past the middle of the table, or
+holding it by the drawer) and starts on it; when the human turns to its own strategy the robot lets go of what
+it holds, stops, and starts over on the human's strategy from its waiting phase (a robot recovering from a
+wrong guess, for the training sets).
 """
 from __future__ import annotations
 
@@ -48,7 +54,10 @@ import numpy as np
 
 from .. import mjx_common as mc
 from ..seqmanip import CUE_Y, DR_DX, DRAWER_OPEN_MIN, GRASP_OFF, OBJ, OBJ_HALF, WALL_TOP
-from . import CHANGE_OF_MIND, DETOUR, NOISE, VARIATION_SALT, pace_factor, pause_schedule, paused
+from . import (CHANGE_OF_MIND, DETOUR, FOLLOWING_PARTNER, NOISE, VARIATION_SALT, pace_factor, pause_schedule,
+               paused)
+
+FOLLOWS_PARTNER = True  # team_init takes ``variation | FOLLOWING_PARTNER`` (module docstring)
 
 (H_WAIT, H_REACH, H_DESCEND, H_CLOSE, H_LIFT,
  H_CARRY, H_OFFER, H_BACKOFF, H_TO_HANDLE, H_DESC_HANDLE, H_GRIP_HANDLE, H_PULL, H_HOLD_OPEN, H_PUSH,
@@ -141,6 +150,7 @@ class TeamState(NamedTuple):
     wp_off: jax.Array     # (2, 3) detour offsets: reach (from the point above the bar), carry (from the midpoint)
     wp_on: jax.Array      # (2,) bool: waypoint still to visit (reach, carry)
     decoy_n: jax.Array    # () int32 steps left of carrying towards the other strategy's target (0: none)
+    follows: jax.Array    # () bool: the robot takes the strategy the human's moves suggest (FOLLOWING_PARTNER)
 
 
 def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamState, jax.Array]:
@@ -148,7 +158,8 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
     u = lambda k, lo, hi, shape=(): jax.random.uniform(k, shape, minval=jnp.asarray(lo, jnp.float32),  # noqa: E731
                                                        maxval=jnp.asarray(hi, jnp.float32))
     strategy = (jax.random.categorical(ks[0], jnp.log(jnp.asarray(mix, jnp.float32) + 1e-12)) + 1).astype(jnp.int32)
-    v = jnp.asarray(variation, jnp.int32)
+    v_in = jnp.asarray(variation, jnp.int32)
+    v = v_in % FOLLOWING_PARTNER
     kv = jax.random.split(jax.random.fold_in(rng, VARIATION_SALT), 8)
     pace = pace_factor(v, *PACE)
     pause_t, pause_n = pause_schedule(kv[0], v, NUM_PAUSES, PAUSE_START, PAUSE_LEN)
@@ -160,8 +171,9 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
     decoy_n = jnp.where(v == CHANGE_OF_MIND, jax.random.randint(kv[7], (), *DECOY_STEPS), 0)
     vmax, amax, gain = u(ks[9], 0.45, 0.85, (2,)), u(ks[10], 0.06, 0.12, (2,)), u(ks[11], 0.12, 0.22, (2,))
     noise = u(ks[18], 0.02, 0.08, (2,))
+    follows = (v_in >= FOLLOWING_PARTNER) & (v == CHANGE_OF_MIND)
     ts = TeamState(
-        strategy=jnp.stack([strategy, strategy]),
+        strategy=jnp.stack([strategy, jnp.where(follows, 3 - strategy, strategy)]),
         spot=u(ks[1], [-0.16, -0.07, 0.14], [0.0, 0.0, 0.26], (3,)),
         wait_pt=jnp.stack([u(ks[2], [-0.06, -0.21, 0.18], [0.04, -0.15, 0.25], (3,)),
                            u(ks[3], [0.04, 0.13, 0.24], [0.10, 0.17, 0.29], (3,))]),
@@ -191,6 +203,7 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
         wp_off=wp_off,
         wp_on=jnp.full((2,), v == DETOUR),
         decoy_n=decoy_n.astype(jnp.int32),
+        follows=follows,
     )
     return ts, strategy
 
@@ -340,12 +353,14 @@ def _robot(env, ts: TeamState, c: dict):
     grip = jnp.where(((pr >= R_CLOSE) & (pr <= R_LOWER)) | ((pr >= R_GRIP_HANDLE) & (pr <= R_PUSH)), -1.0, 1.0)
     near = lambda tgt, tol: _near(c, 1, tgt, tol)  # noqa: E731
     near_h = lambda tgt, tol: _near(c, 0, tgt, tol)  # noqa: E731
+    # a following robot takes the human's first leg of a change of mind for what it looks like
+    decoy = ts.follows & ((ph == H_CARRY) | (ph == H_CARRY_WAIT)) & (ts.decoy_n > 0)
     gate = _select(pr, {
         # the robot reacts to what it can see (so a policy reading the state can tell the strategies
         # apart when the robot has to act): s1, the human carrying the bar has come past the middle
         # towards it; s2, the human holds the bar still at its waiting point by the drawer
-        R_WAIT: jnp.where(s_r == 0, (ph >= H_CARRY) & (ph <= H_OFFER) & (tcp[0, 1] > CUE_Y),
-                          (ph == H_WAIT_OPEN) | ((ph == H_CARRY_WAIT) & near_h(ts.wait_pt[0], 0.03))),
+        R_WAIT: jnp.where(s_r == 0, (((ph >= H_CARRY) & (ph <= H_OFFER)) | decoy) & (tcp[0, 1] > CUE_Y),
+                          (ph == H_WAIT_OPEN) | (((ph == H_CARRY_WAIT) | decoy) & near_h(ts.wait_pt[0], 0.03))),
         R_WAIT_OPEN: (c["opening"] >= DRAWER_OPEN_MIN) & (ph == H_HOLD_OPEN),
         R_HOLD_OPEN: c["placed"] & (ph == H_RETREAT)}, True)
     adv = _select(pr, {
@@ -401,12 +416,17 @@ def team_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.
     decoy_n = jnp.where(stopped, ts.decoy_n, decoy_n)
     action = jnp.clip(jnp.concatenate([a_h, grip_h[None], a_r, grip_r[None]]), -1.0, 1.0)
 
+    # a following robot's switch: the human turns from its first leg to its own strategy
+    switch = ts.follows & (ts.strategy[1] != ts.strategy[0]) & (ts.decoy_n > 0) & (decoy_n == 0)
+    new_pr = jnp.where(switch, R_WAIT, new_pr)
+    strategy = ts.strategy.at[1].set(jnp.where(switch, ts.strategy[0], ts.strategy[1]))
+
     new_phase = jnp.stack([new_ph, new_pr]).astype(jnp.int32)
-    changed = new_phase != ts.phase
+    changed = (new_phase != ts.phase) | jnp.stack([False, switch])
     counted = jnp.where(jnp.stack([gate_h, gate_r]), ts.timer + 1, 0)
     counted = counted.at[0].set(jnp.where(stopped, ts.timer[0], counted[0]))
     timer = jnp.where(changed, 0, counted).astype(jnp.int32)
     anchor = jnp.where(changed[:, None], c["tcp"], ts.anchor)
     ts = ts._replace(phase=new_phase, timer=timer, vel=jnp.stack([vel_h, vel_r]), anchor=anchor, wp_on=wp_on,
-                     decoy_n=decoy_n)
+                     decoy_n=decoy_n, strategy=strategy)
     return ts, action

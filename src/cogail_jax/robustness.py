@@ -190,14 +190,22 @@ def _batch_size(env, num: int, batch: int | None) -> int:
 
 
 def generate_varied(env, variation: str, num: int, mix="uniform", seed: int | None = None, split: str = "test",
-                    batch: int | None = None, max_attempts: int | None = None) -> tuple[VariedEpisodes, dict]:
+                    batch: int | None = None, max_attempts: int | None = None,
+                    following_partner: bool = False) -> tuple[VariedEpisodes, dict]:
     """``num`` varied episodes that succeed (with the strategy drawn) and validate by re-simulation, and the
     yield: ``{"attempted", "team_success", "validated", "yield"}`` (yield = validated / attempted over all the
     generator batches that were run). Batches of ``batch`` episodes until ``num`` are kept or ``max_attempts``
-    (default 5 num) were tried."""
+    (default 5 num) were tried. ``following_partner``: the scripted robot follows the human's apparent strategy
+    (``envs/teams/__init__.py``; tasks whose ``env.partner_can_follow``), with the same human draws."""
+    from cogail_envs.teams import FOLLOWING_PARTNER
+
     from .demos import resolve_mix
 
     vid = variation_id(variation)
+    if following_partner:
+        if not env.partner_can_follow:
+            raise ValueError(f"{env.name}'s scripted robot has no following mode")
+        vid |= FOLLOWING_PARTNER
     seed = variation_seed(variation, split) if seed is None else int(seed)
     batch = _batch_size(env, num, batch)
     max_attempts = max_attempts or 5 * num
@@ -289,21 +297,26 @@ def ensure_varied_training_set(env, mix="uniform", num: int = 0, per_variation: 
     """The default training set (``data.ensure_default_demos``) plus ``per_variation`` varied-human episodes of each
     of the protocol's variations, made like the test's varied humans (successful, validated by re-simulation) from
     the training split's generator seeds (300 + the variation's index, disjoint from the test's and validation's):
-    ``data/<task>_<mix>_train[_N]_varied<k>.hdf5``, made on first use and cached."""
+    ``data/<task>_<mix>_train[_N]_varied<k>.hdf5``, made on first use and cached. Where the task's scripted robot
+    can follow the human (``env.partner_can_follow``), its change-of-mind episodes have the robot start on the
+    strategy the human's first leg suggests and recover when the human turns (a demonstration of adapting)."""
     import h5py
 
     from .data import ensure_default_demos
 
     team_path = ensure_default_demos(env, "train", mix, verbose=verbose, num=num)
     path = varied_training_path(team_path, per_variation)
+    follows = bool(env.partner_can_follow)
     if path.exists() and _stored_version(path) == env.version:
         with h5py.File(path, "r") as f:
-            if int(f.attrs.get("robust_version", -1)) == ROBUST_VERSION:
+            if (int(f.attrs.get("robust_version", -1)) == ROBUST_VERSION
+                    and bool(f.attrs.get("following_partner", False)) == follows):
                 return path
     team = load_demos(team_path, env, require_init=True)
     parts = [team]
     for v in VARIATIONS:
-        eps, _ = generate_varied(env, v, per_variation, mix=mix, split="train", batch=batch)
+        eps, _ = generate_varied(env, v, per_variation, mix=mix, split="train", batch=batch,
+                                 following_partner=follows and v == "change_of_mind")
         parts.append(eps)
     if verbose:
         print(f"adding {per_variation} varied-human episodes per variation to {team_path} -> {path}", flush=True)
@@ -327,7 +340,7 @@ def ensure_varied_training_set(env, mix="uniform", num: int = 0, per_variation: 
                      seed=variation_seed(VARIATIONS[0], "train"))
     with h5py.File(tmp, "a") as f:
         f.attrs.update(robust_version=ROBUST_VERSION, varied_per_variation=int(per_variation),
-                       team_demos=int(len(team.length)))
+                       team_demos=int(len(team.length)), following_partner=follows)
     os.replace(tmp, path)
     return path
 

@@ -18,7 +18,7 @@ the ones the default team uses). The ids, in order (``VARIATIONS[i - 1]`` is id 
 
 What each means per task is in the task's team module.
 
-``variation | FOLLOWING_PARTNER`` (teams whose module sets ``FOLLOWS_PARTNER = True``: seqmanip) changes the
+``variation | FOLLOWING_PARTNER`` (tasks whose env sets ``partner_can_follow``: seqmanip) changes the
 scripted ROBOT instead of reading the team's plan: under ``change_of_mind`` it first takes the strategy the
 human's moves suggest and switches when the human turns to its own, as a partner who cannot read minds does.
 Training sets use it (``robustness.ensure_varied_training_set``) so that the demonstrations show a robot

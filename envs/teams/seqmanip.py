@@ -57,8 +57,6 @@ from ..seqmanip import CUE_Y, DR_DX, DRAWER_OPEN_MIN, GRASP_OFF, OBJ, OBJ_HALF, 
 from . import (CHANGE_OF_MIND, DETOUR, FOLLOWING_PARTNER, NOISE, VARIATION_SALT, pace_factor, pause_schedule,
                paused)
 
-FOLLOWS_PARTNER = True  # team_init takes ``variation | FOLLOWING_PARTNER`` (module docstring)
-
 (H_WAIT, H_REACH, H_DESCEND, H_CLOSE, H_LIFT,
  H_CARRY, H_OFFER, H_BACKOFF, H_TO_HANDLE, H_DESC_HANDLE, H_GRIP_HANDLE, H_PULL, H_HOLD_OPEN, H_PUSH,
  H_LET_GO,

@@ -205,7 +205,7 @@ def test_variants_are_compared_on_the_validation_humans(tmp_path):
 
 def test_shipped_labels_match_the_task_configs():
     """SHIPPED and BUDGETS name, per task and budget, the variant with experiments/<task>_<budget>.json's settings:
-    keep them in step (the label's parts: train-varied-N, N-demos, policy-ema, init-std-S, the budget)."""
+    keep them in step (the label's parts: train-varied-N, N-demos, policy-ema, init-std-S, bc-std, the budget)."""
     import math
     import re
 
@@ -222,6 +222,7 @@ def test_shipped_labels_match_the_task_configs():
         std = re.search(r"init-std-([\d.]+)", label)
         assert (round(math.exp(cfg["init_log_std"]), 2) if "init_log_std" in cfg else None) == (
             float(std.group(1)) if std else None), (task, label)
+        assert bool(cfg.get("bc_std")) == label.endswith("-bc-std"), (task, label)
         assert (budget == "paper") == (not label.startswith(budget)), (task, label)
 
 

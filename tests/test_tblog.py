@@ -49,6 +49,18 @@ def test_intervals_without_episodes_are_none(tmp_path, ckpts):
     assert ts["mean"][0] is None and ts["mean"][-1] == 1.0
 
 
+def test_episode_windows_span_at_least_one_time_limit():
+    """Windows end at checkpoints, each at least the time limit's updates long (a shorter one would count the early
+    successes without the failures that end at the limit); the last checkpoint ends the last window, which takes in a
+    shorter remainder."""
+    assert tblog.episode_windows([30, 60, 90, 120, 150, 180], 60) == [60, 120, 180]
+    assert tblog.episode_windows([30, 60, 90, 120, 150], 60) == [60, 150]
+    assert tblog.episode_windows([30, 60, 90], 4) == [30, 60, 90]
+    assert tblog.episode_windows([30, 60, 90, 100], 45) == [100]
+    assert tblog.episode_windows([10], 60) == [10]
+    assert tblog.episode_windows([], 60) == []
+
+
 def test_results_md_gives_the_first_and_last_interval():
     from cogail_jax import evaluate
 

@@ -7,6 +7,7 @@ import pytest
 
 from cogail_jax import checkpoint as ckpt
 from cogail_jax import data, tblog, timing, train, trainer
+from cogail_jax.config import ConfigError
 
 
 @pytest.fixture(scope="module")
@@ -189,8 +190,9 @@ def test_resume_is_exact(tiny_cfg, tmp_path):
     assert (full / "results.md").read_text().startswith("# cogail on fetchq")
     assert (full / "strategy_distribution.png").exists() and (full / "latent_map.png").exists()
     ts = res["training_success"]  # the co-policy's own episodes from the TensorBoard logs (none ends in so few steps)
-    assert ts["checkpoints"] == res["checkpoints"] and all(r is None or 0 <= r <= 1 for r in ts["mean"])
-    assert tblog.training_success(part, tiny_cfg.seeds, tiny_cfg.steps_per_update, res["checkpoints"]) == ts
+    windows = tblog.episode_windows(res["checkpoints"], -(-300 // tiny_cfg.unroll_length))  # fetchq: 300 steps
+    assert ts["checkpoints"] == windows and all(r is None or 0 <= r <= 1 for r in ts["mean"])
+    assert tblog.training_success(part, tiny_cfg.seeds, tiny_cfg.steps_per_update, windows) == ts
 
     # RUN/speed.json: every phase of the training and of the evaluation, in seconds
     speed = json.loads((full / "speed.json").read_text())
@@ -449,3 +451,30 @@ def test_rollout_records_time_outs_with_the_value_of_the_final_observation(tiny_
     np.testing.assert_allclose(np.asarray(tr2["final_value"][0]), np.asarray(want), rtol=1e-5, atol=1e-6)
     # the next step's value is that of the fresh episode, not of the final observation
     assert float(np.abs(np.asarray(tr2["value"][1]) - np.asarray(want)).max()) > 1e-4
+
+
+def test_bc_std_sets_each_action_dims_std_to_the_cloned_residual(tiny_cfg, fetchq):
+    """bc_std: after BC pre-training the co-policy's std per action dimension is the RMS of the cloned mean's residual on
+    the demonstrations (measured here on every expert step, independently), within [0.01, exp(init_log_std)]; the
+    moving average starts from it; without bc_std the std stays at init_log_std."""
+    demos = data.load_demos(tiny_cfg.demos, fetchq)
+    expert = train.expert_arrays(demos, tiny_cfg.history)
+    norm = train.fit_normalizer(expert)
+    cfg = tiny_cfg.replace(bc_steps=300, seeds=(1,), init_log_std=0.0, bc_std=True, policy_ema=0.9)
+    init, _, nets = train.make_train_fns(cfg, fetchq, norm)
+    p = jax.tree.map(lambda x: x[0], init((1,), expert).params)
+    log_std = np.asarray(p["actor"]["params"]["log_std"])
+    obs = (expert["obs"] - norm["mean"]) / norm["std"]
+    z = np.tanh(np.asarray(p["codes"]))[np.asarray(expert["demo"])]
+    mean, _ = nets["actor"].apply(p["actor"], obs, z)
+    rms = np.sqrt(np.mean((np.asarray(mean) - np.concatenate([expert["ah"], expert["ar"]], -1)) ** 2, 0))
+    want = np.clip(rms, 0.01, 1.0)
+    np.testing.assert_allclose(np.exp(log_std), want, rtol=0.1)
+    assert np.ptp(log_std) > 0.05, log_std  # one std per dimension, not one for all
+    assert np.all(log_std < 0.0), log_std  # BC fits the demonstrations better than std 1
+    np.testing.assert_array_equal(p["ema"]["actor"]["params"]["log_std"], log_std)
+    init0, _, _ = train.make_train_fns(cfg.replace(bc_std=False), fetchq, norm)
+    p0 = init0((1,), expert).params
+    np.testing.assert_array_equal(np.asarray(p0["actor"]["params"]["log_std"]), 0.0)
+    with pytest.raises(ConfigError, match="bc_steps"):
+        cfg.replace(bc_steps=0).validate()

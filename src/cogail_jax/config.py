@@ -55,6 +55,11 @@ class TrainConfig:
     entropy_coef: float = 0.0
     max_grad_norm: float = 0.5
     init_log_std: float = -1.6  # std 0.2: the demonstrations are smooth; a noisier start is told apart at once
+    # our addition (off = the paper's state-independent std from init_log_std): after BC pre-training, each action
+    # dimension's std is the RMS of the cloned mean's residual on the demonstrations (the maximum-likelihood std of
+    # the cloned Gaussian), clipped to [0.01, exp(init_log_std)]: the co-policy explores as much as the
+    # demonstrators varied on each dimension (README, "HR-SeqManip")
+    bc_std: bool = False
     reward_norm: bool = True
     policy_cooldown: int = 0  # the run's last N updates: PPO trains the critic only, the co-policy moves by the
     #   L_a / L_r steps alone (our addition, 0 = off; README, "HR-SeqManip")
@@ -178,6 +183,8 @@ class TrainConfig:
             raise ConfigError(f"policy_ema must be in [0, 1) (a decay per update; 0 = off), got {self.policy_ema}")
         if self.bc_coef < 0:
             raise ConfigError(f"bc_coef must be >= 0, got {self.bc_coef}")
+        if self.bc_std and not self.bc_steps:
+            raise ConfigError("bc_std sets the action std from BC pre-training: give bc_steps > 0 too")
         if self.history < 0 or self.bc_steps < 0:
             raise ConfigError("history and bc-steps must be >= 0")
         if self.steps_per_update % self.num_minibatches:

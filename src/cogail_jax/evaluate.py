@@ -481,8 +481,9 @@ def _training_success_line(ts: dict | None) -> list[str]:
         return []
     (a0, c0, r0), (a1, c1, r1) = spans[0], spans[-1]
     return ["", f"The co-policy's own training episodes (both agents the co-policy) succeeded {100 * r0:.1f} % over "
-            f"updates {a0}-{c0} and {100 * r1:.1f} % over updates {a1}-{c1} (mean over seeds; every interval between "
-            "checkpoints: results.json's training_success)."]
+            f"updates {a0}-{c0} and {100 * r1:.1f} % over updates {a1}-{c1} (mean over seeds; windows of at least one "
+            "time limit, so that the failures, which end there, count beside the successes; every window: results.json's "
+            "training_success)."]
 
 
 def results_markdown(res: dict) -> str:

@@ -153,6 +153,18 @@ def bc_loss(psi_apply, actor_apply, params, batch, use_code, codes="demo", targe
     return err(mean)
 
 
+def bc_residual(cfg: TrainConfig, nets: Nets, params, batch):
+    """The co-policy's mean minus the expert's joint action ``(a_H, a_R)`` on an expert minibatch, each step on the
+    code BC trains it with (its demonstration's learned code, or psi's code; zero for presets without one)."""
+    if cfg.bc_codes == "psi":
+        z = nets.psi(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1))
+    else:
+        z = jnp.tanh(params["codes"])[batch["demo"]]
+    z = z if cfg.use_code else jnp.zeros_like(z)
+    mean, _ = nets.actor(params["actor"], batch["obs"], z)
+    return mean - jnp.concatenate([batch["ah"], batch["ar"]], -1)
+
+
 def diversity_q_loss(psi_apply, params, hist_in, z):
     """DIAYN: fit q(z | h) (psi's network) to the codes of generated data; no gradient reaches the policy."""
     return jnp.mean(jnp.sum((psi_apply(params["psi"], hist_in) - z) ** 2, -1))

@@ -46,6 +46,21 @@ def read_scalars(log_dir: str | Path, tags) -> dict[str, dict[int, float]]:
     return out
 
 
+def episode_windows(checkpoints, min_updates: int) -> list[int]:
+    """The checkpoints that end windows of at least ``min_updates`` updates each; the last checkpoint ends the last
+    window, which takes in a shorter remainder (a run shorter than ``min_updates``: one window). A failed training
+    episode ends only at the time limit, a successful one sooner, so a window shorter than the limit counts the
+    successes of episodes whose failures it does not see."""
+    ends, start = [], 0
+    for c in checkpoints:
+        if c - start >= min_updates:
+            ends.append(int(c))
+            start = c
+    if checkpoints and (not ends or ends[-1] != checkpoints[-1]):
+        ends[-1:] = [int(checkpoints[-1])]
+    return ends
+
+
 def training_success(run_dir: str | Path, seeds, steps_per_update: int, checkpoints) -> dict | None:
     """The co-policy's success rate in its own training episodes over each interval between checkpoints (the
     updates after the previous checkpoint up to this one): episodes that succeeded over episodes that ended, per

@@ -180,7 +180,7 @@ def bc_pretrain(ctx: Context, state: TrainState, expert):
     demonstration's learned code; psi learns to recognise the codes only in presets with L_a."""
     cfg = ctx.cfg
     tx = optax.adam(cfg.bc_lr)
-    rng, key, _ = jax.random.split(state.rng, 3)
+    rng, key, key_std = jax.random.split(state.rng, 3)
     names = ("actor", "psi", "codes") if "bc_psi" in losses.objective_terms(cfg) else ("actor", "codes")
     sub = {k: state.params[k] for k in names}
 
@@ -193,7 +193,24 @@ def bc_pretrain(ctx: Context, state: TrainState, expert):
 
     (sub, _), bc_losses = jax.lax.scan(body, (sub, tx.init(sub)), jax.random.split(key, cfg.bc_steps))
     params = {**state.params, **sub}
+    if cfg.bc_std:
+        params = with_bc_std(ctx, params, sample_expert(state.norm, expert, key_std, BC_STD_SAMPLE))
     return state.replace(params=with_ema_start(cfg, params), rng=rng), bc_losses[-1]
+
+
+BC_STD_SAMPLE = 8192  # expert steps the residual's RMS is measured on
+BC_STD_MIN = 0.01
+
+
+def with_bc_std(ctx: Context, params: dict, batch: dict) -> dict:
+    """``params`` with the co-policy's log std set per action dimension to the RMS of the cloned mean's residual on
+    the expert ``batch`` (the maximum-likelihood std of the cloned Gaussian; ``bc_std``), clipped to
+    [``BC_STD_MIN``, exp(``init_log_std``)]."""
+    res = losses.bc_residual(ctx.cfg, ctx.nets, params, batch)
+    rms = jnp.sqrt(jnp.mean(res ** 2, 0))
+    log_std = jnp.clip(jnp.log(jnp.maximum(rms, 1e-12)), jnp.log(BC_STD_MIN), ctx.cfg.init_log_std)
+    actor = params["actor"]
+    return {**params, "actor": {**actor, "params": {**actor["params"], "log_std": log_std}}}
 
 
 def bc_step(ctx: Context, state: TrainState, expert):

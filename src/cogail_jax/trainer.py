@@ -602,7 +602,8 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
             if not per_ckpt:
                 raise ckpt.nothing_restored(mgr, run_dir)
             res, at, lat = _summarize(s, per_ckpt, codes, part)
-            train_succ = tblog.training_success(run_dir, s.cfg.seeds, s.cfg.steps_per_update, res["checkpoints"])
+            windows = tblog.episode_windows(res["checkpoints"], -(-s.env.max_episode_steps // s.cfg.unroll_length))
+            train_succ = tblog.training_success(run_dir, s.cfg.seeds, s.cfg.steps_per_update, windows)
             if train_succ is not None:  # the co-policy's own training episodes, from the run's TensorBoard logs
                 res["training_success"] = train_succ
             if sets and inp.extra_curves:

@@ -2,6 +2,7 @@ import json
 import logging
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -420,6 +421,35 @@ def test_gae_bootstraps_time_outs_and_cuts_at_every_episode_end():
     adv_t, _ = losses.gae(r, v, done, np.zeros_like(trunc), final, last, g, lam)  # the time-out as terminal
     assert abs(float(adv_t[1, 0]) - (r[1, 0] - v[1, 0])) < 1e-6 and abs(float(adv_t[1, 0] - adv[1, 0])) > 1.0
     np.testing.assert_array_equal(np.asarray(adv_t[:, 1]), np.asarray(adv[:, 1]))
+
+
+def test_ppo_loss_stays_finite_when_the_policy_moved_many_stds():
+    """With a 0.01 std (bc_std's floor) a mean 2 units from the behaviour action gives a log ratio of ~2e4:
+    exp() of it overflowed to inf and the clipped gradient to NaN (seqmanip runs diverged so). The loss and its
+    gradient stay finite, and a policy near the behaviour one gets the ordinary clipped surrogate."""
+    from cogail_jax import losses
+
+    def actor(p, obs, z):
+        return obs * p["w"], jnp.full(obs.shape, p["log_std"])
+
+    def critic(p, obs, z):
+        return obs[:, 0] * 0.0 + p["v"]
+
+    obs = jnp.ones((4, 3))
+    batch = {"obs": obs, "z": jnp.zeros((4, 2)), "action": -jnp.ones((4, 3)), "adv": jnp.array([1.0, -1.0, 2.0, -2.0]),
+             "ret": jnp.zeros(4), "logp": jnp.zeros(4)}
+    params = {"actor": {"w": jnp.float32(1.0), "log_std": jnp.log(jnp.float32(0.01))}, "critic": {"v": jnp.float32(0.0)}}
+    f = lambda p: losses.ppo_loss(actor, critic, p, batch, 0.2, 0.5, 0.0)  # noqa: E731
+    (total, m), grads = jax.value_and_grad(f, has_aux=True)(params)
+    assert np.isfinite(float(total)) and np.isfinite(float(m["approx_kl"]))
+    assert all(np.isfinite(np.asarray(g)).all() for g in jax.tree.leaves(grads))
+    # near the behaviour policy (log ratio 0.1 on every sample): the textbook clipped surrogate
+    near = {**batch, "action": obs, "logp": losses.gaussian_log_prob(obs, jnp.full(obs.shape, jnp.log(0.01)), obs) - 0.1}
+    _, m = losses.ppo_loss(actor, critic, params, near, 0.2, 0.5, 0.0)
+    adv = (near["adv"] - near["adv"].mean()) / (near["adv"].std() + 1e-8)
+    r = np.exp(0.1)
+    want = -np.minimum(r * adv, np.clip(r, 0.8, 1.2) * adv).mean()
+    np.testing.assert_allclose(float(m["policy_loss"]), float(want), rtol=1e-5)
 
 
 def test_rollout_records_time_outs_with_the_value_of_the_final_observation(tiny_cfg, setup):

@@ -39,10 +39,18 @@ def gae(rewards, values, dones, truncations, final_values, last_value, gamma, la
     return adv, adv + values
 
 
+# bound of the PPO log importance ratio: with the small per-dimension stds of ``bc_std`` (0.01-0.02) a mean that
+# moved a few stds within one update's epochs gives log ratios past 88, exp() overflows to inf and the clipped
+# gradient to NaN (seqmanip runs diverged so; docs/notes.md). e^20 is far beyond the clip range, so a bounded
+# ratio only changes samples whose surrogate is clipped anyway (or would have been inf)
+LOG_RATIO_MAX = 20.0
+
+
 def ppo_loss(actor_apply, critic_apply, params, batch, clip_eps, value_coef, entropy_coef):
     mean, log_std = actor_apply(params["actor"], batch["obs"], batch["z"])
     logp = gaussian_log_prob(mean, log_std, batch["action"])
-    ratio = jnp.exp(logp - batch["logp"])
+    log_ratio = jnp.clip(logp - batch["logp"], -LOG_RATIO_MAX, LOG_RATIO_MAX)
+    ratio = jnp.exp(log_ratio)
     adv = batch["adv"]
     adv = (adv - adv.mean()) / (adv.std() + 1e-8)
     pg = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - clip_eps, 1 + clip_eps) * adv).mean()
@@ -50,7 +58,7 @@ def ppo_loss(actor_apply, critic_apply, params, batch, clip_eps, value_coef, ent
     v_loss = 0.5 * ((value - batch["ret"]) ** 2).mean()
     ent = gaussian_entropy(log_std).mean()
     total = pg + value_coef * v_loss - entropy_coef * ent
-    kl = ((ratio - 1) - jnp.log(ratio)).mean()
+    kl = ((ratio - 1) - log_ratio).mean()
     return total, {"policy_loss": pg, "value_loss": v_loss, "entropy": ent, "approx_kl": kl}
 
 

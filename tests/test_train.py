@@ -424,9 +424,10 @@ def test_gae_bootstraps_time_outs_and_cuts_at_every_episode_end():
 
 
 def test_ppo_loss_stays_finite_when_the_policy_moved_many_stds():
-    """With a 0.01 std (bc_std's floor) a mean 2 units from the behaviour action gives a log ratio of ~2e4:
-    exp() of it overflowed to inf and the clipped gradient to NaN (seqmanip runs diverged so). The loss and its
-    gradient stay finite, and a policy near the behaviour one gets the ordinary clipped surrogate."""
+    """With a 0.01 std (bc_std's floor) an action the behaviour policy found 200 nats less likely than the current
+    one gives a log ratio of ~211: exp() overflowed to inf, inf times a negative advantage won the surrogate's min
+    and the gradient was NaN (seqmanip runs diverged so). The loss and its gradient stay finite; within the bound
+    the surrogate is the textbook clipped one, on both of its branches."""
     from cogail_jax import losses
 
     def actor(p, obs, z):
@@ -435,21 +436,22 @@ def test_ppo_loss_stays_finite_when_the_policy_moved_many_stds():
     def critic(p, obs, z):
         return obs[:, 0] * 0.0 + p["v"]
 
-    obs = jnp.ones((4, 3))
-    batch = {"obs": obs, "z": jnp.zeros((4, 2)), "action": -jnp.ones((4, 3)), "adv": jnp.array([1.0, -1.0, 2.0, -2.0]),
-             "ret": jnp.zeros(4), "logp": jnp.zeros(4)}
-    params = {"actor": {"w": jnp.float32(1.0), "log_std": jnp.log(jnp.float32(0.01))}, "critic": {"v": jnp.float32(0.0)}}
-    f = lambda p: losses.ppo_loss(actor, critic, p, batch, 0.2, 0.5, 0.0)  # noqa: E731
+    obs, log_std = jnp.ones((4, 3)), jnp.log(jnp.float32(0.01))
+    params = {"actor": {"w": jnp.float32(1.0), "log_std": log_std}, "critic": {"v": jnp.float32(0.0)}}
+    logp_now = losses.gaussian_log_prob(obs, jnp.full(obs.shape, log_std), obs)  # the action at the current mean
+    base = {"obs": obs, "z": jnp.zeros((4, 2)), "action": obs, "adv": jnp.array([1.0, -1.0, 2.0, -2.0]),
+            "ret": jnp.zeros(4)}
+    far = {**base, "logp": logp_now - 211.0}
+    f = lambda p: losses.ppo_loss(actor, critic, p, far, 0.2, 0.5, 0.0)  # noqa: E731
     (total, m), grads = jax.value_and_grad(f, has_aux=True)(params)
     assert np.isfinite(float(total)) and np.isfinite(float(m["approx_kl"]))
     assert all(np.isfinite(np.asarray(g)).all() for g in jax.tree.leaves(grads))
-    # near the behaviour policy (log ratio 0.1 on every sample): the textbook clipped surrogate
-    near = {**batch, "action": obs, "logp": losses.gaussian_log_prob(obs, jnp.full(obs.shape, jnp.log(0.01)), obs) - 0.1}
-    _, m = losses.ppo_loss(actor, critic, params, near, 0.2, 0.5, 0.0)
-    adv = (near["adv"] - near["adv"].mean()) / (near["adv"].std() + 1e-8)
-    r = np.exp(0.1)
-    want = -np.minimum(r * adv, np.clip(r, 0.8, 1.2) * adv).mean()
-    np.testing.assert_allclose(float(m["policy_loss"]), float(want), rtol=1e-5)
+    adv = (base["adv"] - base["adv"].mean()) / (base["adv"].std() + 1e-8)
+    for d in (0.1, 0.3, -0.4):  # inside the clip range, past 1 + eps (positive advantages clipped), under 1 - eps
+        _, m = losses.ppo_loss(actor, critic, params, {**base, "logp": logp_now - d}, 0.2, 0.5, 0.0)
+        r = np.exp(d)
+        want = -np.minimum(r * adv, np.clip(r, 0.8, 1.2) * adv).mean()
+        np.testing.assert_allclose(float(m["policy_loss"]), float(want), rtol=1e-5)
 
 
 def test_rollout_records_time_outs_with_the_value_of_the_final_observation(tiny_cfg, setup):

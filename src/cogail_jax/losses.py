@@ -40,9 +40,10 @@ def gae(rewards, values, dones, truncations, final_values, last_value, gamma, la
 
 
 # bound of the PPO log importance ratio: with the small per-dimension stds of ``bc_std`` (0.01-0.02) a mean that
-# moved a few stds within one update's epochs gives log ratios past 88, exp() overflows to inf and the clipped
-# gradient to NaN (seqmanip runs diverged so; docs/notes.md). e^20 is far beyond the clip range, so a bounded
-# ratio only changes samples whose surrogate is clipped anyway (or would have been inf)
+# moved a few stds within one update's epochs gives log ratios past 88, exp() overflows to inf, inf times a negative
+# advantage wins the surrogate's min and the gradient is NaN (seqmanip runs diverged so; docs/notes.md). Within the
+# bound nothing changes; a sample past it gets no gradient (as in dual-clip PPO, Ye et al. 2020, whose bound on a
+# negative advantage's ratio is 3 rather than e^20)
 LOG_RATIO_MAX = 20.0
 
 

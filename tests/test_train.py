@@ -424,8 +424,8 @@ def test_gae_bootstraps_time_outs_and_cuts_at_every_episode_end():
 
 
 def test_ppo_loss_stays_finite_when_the_policy_moved_many_stds():
-    """With a 0.01 std (bc_std's floor) an action the behaviour policy found 200 nats less likely than the current
-    one gives a log ratio of ~211: exp() overflowed to inf, inf times a negative advantage won the surrogate's min
+    """With a 0.01 std (bc_std's floor) an action the behaviour policy found 211 nats less likely than the current
+    one gives a log ratio of 211: exp() overflowed to inf, inf times a negative advantage won the surrogate's min
     and the gradient was NaN (seqmanip runs diverged so). The loss and its gradient stay finite; within the bound
     the surrogate is the textbook clipped one, on both of its branches."""
     from cogail_jax import losses

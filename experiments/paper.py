@@ -192,10 +192,11 @@ def fig3_png(results: dict, methods, path: Path) -> bool:
     return True
 
 
-SHIPPED = {"fetchq": "train-varied-20", "handover": "train-varied-10-policy-ema", "seqmanip": "1000-demos-train-varied-20-policy-ema-init-std-0.1-bc-std"}
+SHIPPED = {"fetchq": "train-varied-20", "handover": "train-varied-10-policy-ema", "seqmanip": "1000-demos-train-varied-100-policy-ema-init-std-0.1-bc-std"}
 """The variant label whose run has the settings ``make train TASK=...`` uses (experiments/<task>_paper.json), where
 they differ from the main table's (which trains every method on the team demonstrations alone)."""
-BUDGETS = {"handover": {"2x": "2x-train-varied-10-policy-ema"}}
+BUDGETS = {"handover": {"2x": "2x-train-varied-10-policy-ema"},
+           "seqmanip": {"2x": "2x-1000-demos-train-varied-100-policy-ema-init-std-0.1-bc-std"}}
 """The variant labels of the larger budgets ``make train TASK=... BUDGET=b`` trains (experiments/<task>_<b>.json)."""
 
 
@@ -218,7 +219,9 @@ def curves_png(results: dict, path: Path, method: str = "cogail") -> bool:
         return (parts[1] == method and parts[2] == "uniform" and (len(parts) == 3 or parts[3] in _shipped_labels(parts[0]))
                 and bool((results[k].get("curves") or {}).get("replay_success")))
 
-    keys = sorted(k for k in results if shown(k))
+    names = {f"{t}/{method}/uniform/{label}": "make train" + ("" if b == "paper" else f" BUDGET={b}")
+             for t, b, label in shipped_runs()}
+    keys = sorted((k for k in results if shown(k)), key=lambda k: (k in names, names.get(k, "")))
     tasks = [t for t in ("fetchq", "handover", "seqmanip") if any(k.startswith(t + "/") for k in keys)]
     if not tasks:
         return False
@@ -231,7 +234,7 @@ def curves_png(results: dict, path: Path, method: str = "cogail") -> bool:
     fig, axes = plt.subplots(2, len(tasks), figsize=(4.2 * len(tasks), 5.5), squeeze=False)
     for j, t in enumerate(tasks):
         for k in (k for k in keys if k.startswith(t + "/")):
-            r, label = results[k], ("shipped: " + k.split("/")[3]) if k.count("/") >= 3 else "main table"
+            r, label = results[k], names.get(k, "main table")
             x = np.asarray(r["checkpoints"])
             for i, col in enumerate(("replay_success", "interpolation_success")):
                 y = 100 * np.asarray(r["curves"][col], float)  # (seeds, checkpoints)
@@ -246,7 +249,7 @@ def curves_png(results: dict, path: Path, method: str = "cogail") -> bool:
             axes[i, j].set_ylabel(name)
             axes[i, j].set_ylim(0, 100)
         axes[1, j].set_xlabel("update")
-        axes[0, j].legend(fontsize=7)
+        axes[1, j].legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -206,21 +206,17 @@ def shipped_runs():
     return runs + [(t, b, label) for t, labels in BUDGETS.items() for b, label in labels.items()]
 
 
-def _shipped_labels(task: str) -> set:
-    return {label for t, _, label in shipped_runs() if t == task}
-
-
 def curves_png(results: dict, path: Path, method: str = "cogail") -> bool:
     """Learning curves of ``method`` per task, the main table's run and the shipped settings' run (``SHIPPED``):
     replay and interpolation success on test against updates, mean +- std over seeds, the checkpoint selected on
     validation dotted."""
-    def shown(k):
-        parts = k.split("/")
-        return (parts[1] == method and parts[2] == "uniform" and (len(parts) == 3 or parts[3] in _shipped_labels(parts[0]))
-                and bool((results[k].get("curves") or {}).get("replay_success")))
-
     names = {f"{t}/{method}/uniform/{label}": "make train" + ("" if b == "paper" else f" BUDGET={b}")
              for t, b, label in shipped_runs()}
+
+    def shown(k):
+        parts = k.split("/")
+        return (parts[1:] == [method, "uniform"] or k in names) and bool((results[k].get("curves") or {}).get("replay_success"))
+
     keys = sorted((k for k in results if shown(k)), key=lambda k: (k in names, names.get(k, "")))
     tasks = [t for t in ("fetchq", "handover", "seqmanip") if any(k.startswith(t + "/") for k in keys)]
     if not tasks:

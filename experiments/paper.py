@@ -49,7 +49,8 @@ PAPER_INTERP = {  # Table 2 of the paper
 MIX_SHARES = {"D1": (17, 17, 33, 33), "D2": (33, 33, 17, 17)}  # the demonstrations' strategy shares (%), Fig. 3
 KEEP = ("task", "method", "seeds", "checkpoints", "paper_protocol", "selected", "last", "per_seed_best",
         "breakdowns_at", "strategy_distribution", "strategy_distribution_per_seed", "replay_by_strategy",
-        "interpolation_events", "curves", "splits", "extra_sets")  # what paper.json keeps of results.json
+        "interpolation_events", "curves", "splits", "extra_sets",
+        "validation_strategy_distribution")  # what paper.json keeps of results.json
 
 
 def resolve_config(task, method, mix, seeds, extra: dict):
@@ -346,6 +347,24 @@ def shipped_rows(results: dict) -> list[str]:
     return lines if len(lines) > 2 else []
 
 
+def validation_rows(results: dict) -> list[str]:
+    """Every run's validation figures, on which checkpoints and variants are chosen: replay at the selected and the
+    last checkpoint, interpolation from the validation initial states there, and its strategy shares (-: not
+    measured; runs evaluated before the validation interpolation)."""
+    lines = ["| run | replay: selected | replay: last | interpolation: selected | interpolation: last | strategies "
+             "(selected) |", "| --- | --- | --- | --- | --- | --- |"]
+    for k in sorted(results):
+        r = results[k]
+        sel, last = r.get("selected") or {}, r.get("last") or {}
+        if not sel.get("validation_replay"):
+            continue
+        cells = [_pct(d.get(f)) for f in ("validation_replay", "validation_interpolation") for d in (sel, last)]
+        shares = r.get("validation_strategy_distribution")
+        cells.append(", ".join(f"{n} {100 * v:.0f} %" for n, v in shares.items()) if shares else "-")
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    return lines if len(lines) > 2 else []
+
+
 def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None) -> None:
     t1 = table(results, tasks, methods, "replay", PAPER_REPLAY)
     t2 = table(results, tasks, methods, "interpolation", PAPER_INTERP)
@@ -353,7 +372,9 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
     rob, stab, var = robustness_rows(results, tasks, methods), stability_rows(results), variant_rows(results)
     for name, title, rows in (("robustness.md", "Replay against varied humans (%, selected checkpoint, test)", rob),
                               ("stability.md", "Selected vs last checkpoint (%, test)", stab),
-                              ("variants.md", "Variants of the shipped settings (%, test)", var)):
+                              ("variants.md", "Variants of the shipped settings (%, test)", var),
+                              ("validation.md", "Validation figures of every run (%, validation): choices are made "
+                               "on these", validation_rows(results))):
         if rows:
             (out / name).write_text(f"# {title}\n\n" + "\n".join(rows) + "\n")
     patient = robustness_rows(results, tasks, methods, "patient-robust-", "patient-test")

@@ -203,6 +203,22 @@ def test_variants_are_compared_on_the_validation_humans(tmp_path):
     assert "val-" not in (out / "robustness.md").read_text()
 
 
+def test_every_run_has_a_row_of_its_validation_figures(tmp_path):
+    """validation.md: replay and the validation interpolation at the selected and the last checkpoint, and the
+    validation rollouts' strategy shares, for every run with a validation split; - where one was not measured."""
+    new = _res(0.6, 0.5)
+    new["selected"]["validation_interpolation"], new["last"]["validation_replay"] = _s(0.35), _s(0.45)
+    new["last"]["validation_interpolation"] = _s(0.3)
+    new["validation_strategy_distribution"] = {"hands-over": 0.25, "opens": 0.75}
+    results = {"seqmanip/cogail/uniform/new": new, "seqmanip/cogail/uniform": _res(0.6, 0.5),
+               "fetchq/diayn/uniform": {"replay_success": _s(0.9)}}  # made before the protocol: no row
+    paper.tables(results, ["seqmanip"], ["cogail"], tmp_path)
+    text = (tmp_path / "validation.md").read_text()
+    assert "| seqmanip/cogail/uniform/new | 50.0 | 45.0 | 35.0 | 30.0 | hands-over 25 %, opens 75 % |" in text
+    assert "| seqmanip/cogail/uniform | 50.0 | - | - | - | - |" in text
+    assert "fetchq/diayn" not in text
+
+
 def test_shipped_labels_match_the_task_configs():
     """SHIPPED and BUDGETS name, per task and budget, the variant with experiments/<task>_<budget>.json's settings:
     keep them in step (the label's parts: train-varied-N, N-demos, policy-ema, init-std-S, bc-std, the budget)."""

@@ -27,7 +27,7 @@ def _episodes(rate, n=4):
     return np.array([1.0] * k + [0.0] * (n - k))
 
 
-def _per_ckpt(validation=True):
+def _per_ckpt(validation=True, val_interp=None):
     out = {}
     for c, step in enumerate(STEPS):
         strat = np.array([[c % 4 + 1, 1, 2, 3]] * len(SEEDS))  # executed strategy of each interpolation rollout
@@ -36,6 +36,9 @@ def _per_ckpt(validation=True):
              "interp_strategy": strat}
         if validation:
             r["val_replay_success"] = np.stack([_episodes(VAL_REPLAY[i][c]) for i in range(3)])
+        if val_interp is not None:  # the validation rollouts: their own rates, strategies in reverse order
+            r["val_interp_success"] = np.stack([_episodes(val_interp[i][c]) for i in range(3)])
+            r["val_interp_strategy"] = strat[:, ::-1]
         out[step] = r
     return out
 
@@ -312,8 +315,9 @@ def test_eval_program_matches_a_step_by_step_reference(tiny_cfg, demo_files, fet
     robot_step, env_step = jax.jit(robot_step), jax.jit(fetchq.step)
     actor = jax.jit(nets["actor"].apply)
     codes = evaluate.interpolation_codes(cfg.eval_codes)
-    keys = jax.random.split(jax.random.PRNGKey(evaluate.EVAL_SEED), cfg.eval_codes)
-    Ah, ref = fetchq.human_action_size, {"replay": [], "interp": []}
+    keys = {name: jax.random.split(jax.random.PRNGKey(seed), cfg.eval_codes)
+            for name, seed in (("interp", evaluate.EVAL_SEED), ("val_interp", evaluate.VALIDATION_EVAL_SEED))}
+    Ah, ref = fetchq.human_action_size, {"replay": [], "interp": [], "val_interp": []}
     for i in range(len(cfg.seeds)):
         params, norm = jax.tree.map(lambda x: x[i], (state.params, state.norm))
         for e in range(E):  # replay: the recorded human, the robot from pi_R(s, psi(h))
@@ -326,18 +330,43 @@ def test_eval_program_matches_a_step_by_step_reference(tiny_cfg, demo_files, fet
                 if s.done:
                     break
             ref["replay"].append(s.metrics)
-        for k in range(cfg.eval_codes):  # interpolation: the co-policy for both agents with code k
-            s = fetchq.reset(keys[k])
+        for name, k in ((name, k) for name in keys for k in range(cfg.eval_codes)):  # the co-policy with code k
+            s = fetchq.reset(keys[name][k])  # from the reported and from the validation initial states
             for t in range(fetchq.max_episode_steps):
                 mean, _ = actor(params["actor"], (s.obs - norm["mean"]) / norm["std"], codes[k])
                 s = env_step(s, jnp.clip(mean, -1, 1))
                 if s.done:
                     break
-            ref["interp"].append(s.metrics)
+            ref[name].append(s.metrics)
     for name, got in (("replay", out["replay_metrics"]), ("interp", out["interp_metrics"])):
         for m, v in got.items():  # every final metric: success, events, positions
             assert np.allclose(np.asarray(v).reshape(-1), [float(r[m]) for r in ref[name]], atol=1e-5), (name, m)
+    assert out["val_interp_success"].shape == (1, 2, 4)
+    assert np.array_equal(out["val_interp_success"].reshape(-1), [float(r["success"]) for r in ref["val_interp"]])
+    assert np.array_equal(out["val_interp_strategy"].reshape(-1),
+                          [int(fetchq.classify_strategy(r)) for r in ref["val_interp"]])
     assert out["replay_success"].sum() + out["interp_success"].sum() > 0  # some episode succeeds: a real check
+
+
+def test_validation_interpolation_is_reported_beside_the_test_figures_and_chooses_nothing():
+    """The validation interpolation rollouts give their own figure at the selected and the last checkpoint, their
+    curve and strategy shares; the selected checkpoint stays the validation replay's, and the test figures are the
+    same as without them."""
+    v_itp = np.array(INTERP)[::-1]  # the seeds' rows swapped: best at 30 on its own, but nothing is chosen on it
+    res = evaluate.summarize("fetchq", "cogail", SEEDS, _per_ckpt(val_interp=v_itp), ("s1", "s2", "s3", "s4"), None)
+    plain = evaluate.summarize("fetchq", "cogail", SEEDS, _per_ckpt(), ("s1", "s2", "s3", "s4"), None)
+    sel = res["selected"]
+    assert sel["checkpoint"] == 40 and sel["validation_interpolation"] == _stat(v_itp[:, 3])
+    assert res["last"]["validation_interpolation"] == _stat(v_itp[:, 3])
+    assert np.array_equal(res["curves"]["validation_interpolation_success"], v_itp)
+    # at 40, one rollout per seed succeeds, the first, which executed strategy 3 there (reversed order: 3, 2, 1, 4)
+    assert res["validation_strategy_distribution"] == {"s1": 0.0, "s2": 0.0, "s3": 1.0, "s4": 0.0}
+    for key in ("paper_protocol", "per_seed_best", "strategy_distribution"):
+        assert res[key] == plain[key]
+    assert "validation_interpolation" not in plain["selected"] and "validation_strategy_distribution" not in plain
+    md = evaluate.results_markdown(res)
+    assert f"(validation replay {evaluate._f(sel['validation_replay'])}, interpolation " in md
+    assert "| s3 | 0.0 | 44.4 | 100.0 |" in md  # test share, paper-protocol share, validation share
 
 
 def test_robustness_sets_of_a_run_trained_on_varied_humans_are_flagged():

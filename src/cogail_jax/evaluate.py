@@ -1,7 +1,9 @@
 """The paper's evaluation protocols, jitted and vmapped over seeds.
 
 * interpolation: ``eval_codes`` codes on a uniform grid over (-1, 1)^2; the co-policy acts for both agents
-  deterministically (action means); success rate and the executed strategies.
+  deterministically (action means); success rate and the executed strategies. Run twice per checkpoint, from two
+  disjoint sets of initial states: the reported one (``EVAL_SEED``) and a validation one
+  (``VALIDATION_EVAL_SEED``), on which choices about diversity (a variant, its settings) are made.
 * replay: the robot acts with pi_R(s, psi(h)) (deterministic) against open-loop replays of held-out human
   trajectories, each episode started where its demonstration started; success rate. An episode ends at the
   task's time limit. A human from outside the test and validation splits (a varied human, your own recordings)
@@ -10,7 +12,7 @@
 * latent map: the mean psi code of each held-out demonstration.
 
 Reporting (``summarize``): every checkpoint is evaluated on the test split (replay, interpolation, latent codes)
-and on the validation split (replay). results.json reports
+and on the validation split (replay, interpolation). results.json reports
 
 * ``paper_protocol``: the paper's figure, for replay and interpolation separately: the checkpoint that maximises
   the mean over seeds of the test success, with mean +- std over seeds there (std: population, ddof 0);
@@ -37,6 +39,7 @@ from .programs import stored
 
 
 EVAL_SEED = 12345  # the interpolation rollouts' initial states: split(PRNGKey(EVAL_SEED), eval_codes), one per code
+VALIDATION_EVAL_SEED = 54321  # the validation interpolation rollouts' initial states, drawn the same way
 REPLAY_MARGIN = 0.2  # a margin replay runs at least this share of the time limit past the end of the recording
 
 
@@ -209,9 +212,10 @@ def make_eval_fn(cfg: TrainConfig, env, nets):
     """Jitted ``evaluate(params, norm, episodes) -> outputs`` of the evaluation protocols at several checkpoints
     and seeds in one device program: params / norm stacked (checkpoints, seeds, ...); ``episodes``:
     ``heldout_arrays`` without ``strategy`` (e.g. ``stack_sets`` of test and validation). The interpolation
-    rollouts (the ``eval_codes`` grid, initial states from ``EVAL_SEED``, the same for every checkpoint and seed)
-    and the replays run in one batch (``_episodes_fn``). Outputs, each (checkpoints, seeds, ...):
-    ``interp_success`` / ``interp_strategy`` / ``interp_metrics`` (per code), ``replay_success`` /
+    rollouts (the ``eval_codes`` grid, from the initial states of ``EVAL_SEED`` and of ``VALIDATION_EVAL_SEED``, the
+    same for every checkpoint and seed) and the replays run in one batch (``_episodes_fn``). Outputs, each
+    (checkpoints, seeds, ...): ``interp_success`` / ``interp_strategy`` / ``interp_metrics`` (per code),
+    ``val_interp_success`` / ``val_interp_strategy`` (the validation rollouts, per code), ``replay_success`` /
     ``replay_metrics`` (per episode) and ``latent`` (psi's mean code of each episode)."""
     run = _episodes_fn(cfg, env, nets)
     psi_code, _ = make_robot_step(cfg, env, nets)
@@ -232,14 +236,18 @@ def make_eval_fn(cfg: TrainConfig, env, nets):
         params, norm = jax.tree.map(_flat, (params, norm))
         rp = replay_episodes(held, cfg.code_dim)
         T = rp["ah"].shape[1]
-        interp = {"init": jax.vmap(env.sample_init)(jax.random.split(jax.random.PRNGKey(EVAL_SEED), n)),
-                  "replay": jnp.zeros((n,), bool), "patient": jnp.zeros((n,), bool), "margin": jnp.zeros((n,), bool),
-                  "code": codes, "ah": jnp.zeros((n, T, env.human_action_size)), "length": jnp.zeros((n,), jnp.int32)}
+        init = jnp.concatenate([jax.vmap(env.sample_init)(jax.random.split(jax.random.PRNGKey(seed), n))
+                                for seed in (EVAL_SEED, VALIDATION_EVAL_SEED)])
+        interp = {"init": init, "replay": jnp.zeros((2 * n,), bool), "patient": jnp.zeros((2 * n,), bool),
+                  "margin": jnp.zeros((2 * n,), bool), "code": jnp.concatenate([codes, codes]),
+                  "ah": jnp.zeros((2 * n, T, env.human_action_size)), "length": jnp.zeros((2 * n,), jnp.int32)}
         eps = jax.tree.map(lambda a, b: jnp.concatenate([a, b.astype(a.dtype)]), interp, rp)
         m = run(params, norm, eps)
-        im, rm = jax.tree.map(lambda x: x[:, :n], m), jax.tree.map(lambda x: x[:, n:], m)
-        out = {"interp_success": im["success"], "interp_strategy": jax.vmap(jax.vmap(env.classify_strategy))(im),
-               "interp_metrics": im, "replay_success": rm["success"], "replay_metrics": rm,
+        im, vm, rm = (jax.tree.map(lambda x, a=a, b=b: x[:, a:b], m) for a, b in ((0, n), (n, 2 * n), (2 * n, None)))
+        strategy = jax.vmap(jax.vmap(env.classify_strategy))
+        out = {"interp_success": im["success"], "interp_strategy": strategy(im), "interp_metrics": im,
+               "val_interp_success": vm["success"], "val_interp_strategy": strategy(vm),
+               "replay_success": rm["success"], "replay_metrics": rm,
                "latent": latent(params, norm, held["obs"], held["prev_ah"], held["length"])}
         return jax.tree.map(lambda x: x.reshape((C, S) + x.shape[1:]), out)
 
@@ -344,7 +352,8 @@ def summarize(task: str, method: str, seeds, per_ckpt: dict[int, dict], strategy
 
     ``per_ckpt[step]``: arrays with a leading seed axis: ``replay_success`` (seeds, test episodes),
     ``interp_success`` / ``interp_strategy`` (seeds, codes), optionally ``val_replay_success`` (seeds, validation
-    episodes), ``interp_metrics`` / ``replay_metrics`` (name -> (seeds, n)). Without validation results there is
+    episodes), ``val_interp_success`` / ``val_interp_strategy`` (seeds, codes: the validation interpolation),
+    ``interp_metrics`` / ``replay_metrics`` (name -> (seeds, n)). Without validation results there is
     no ``selected`` checkpoint (None) and the breakdowns are at the last checkpoint. ``heldout_strategy``: each
     test demonstration's strategy id (for the replay success per strategy)."""
     steps = sorted(per_ckpt)
@@ -353,18 +362,22 @@ def summarize(task: str, method: str, seeds, per_ckpt: dict[int, dict], strategy
     itp = _per_ckpt_rate(per_ckpt, steps, "interp_success", S)
     has_val = all("val_replay_success" in per_ckpt[st] for st in steps)
     val = _per_ckpt_rate(per_ckpt, steps, "val_replay_success", S) if has_val else None
+    has_vi = all("val_interp_success" in per_ckpt[st] for st in steps)
+    vitp = _per_ckpt_rate(per_ckpt, steps, "val_interp_success", S) if has_vi else None
     c_r, c_i, last = argmax_seed_mean(rep), argmax_seed_mean(itp), len(steps) - 1
     c_v = argmax_seed_mean(val) if has_val else None
     at = c_v if has_val else last  # where the breakdowns are computed: never chosen on the test set
 
-    def dist(c):
+    def dist(c, prefix=""):
         r = per_ckpt[steps[c]]
-        return strategy_distribution(r["interp_strategy"], r["interp_success"], strategy_names)
+        return strategy_distribution(r[prefix + "interp_strategy"], r[prefix + "interp_success"], strategy_names)
 
     def figures(c):
         out = {"checkpoint": int(steps[c]), "replay": stat(rep[:, c], seeds), "interpolation": stat(itp[:, c], seeds)}
         if has_val:
             out["validation_replay"] = stat(val[:, c], seeds)
+        if has_vi:
+            out["validation_interpolation"] = stat(vitp[:, c], seeds)
         return out
 
     best_r, best_i = rep.argmax(1), itp.argmax(1)
@@ -395,6 +408,8 @@ def summarize(task: str, method: str, seeds, per_ckpt: dict[int, dict], strategy
     d, d_seed = dist(at)
     res["strategy_distribution"] = d
     res["strategy_distribution_per_seed"] = dict(zip(map(str, seeds), d_seed))
+    if has_vi:  # the same, from the validation interpolation rollouts: choices about diversity are made on it
+        res["validation_strategy_distribution"] = dist(at, "val_")[0]
     r_at = per_ckpt[steps[at]]
     if "interp_metrics" in r_at:
         im = r_at["interp_metrics"]
@@ -417,6 +432,8 @@ def summarize(task: str, method: str, seeds, per_ckpt: dict[int, dict], strategy
     res["curves"] = {"replay_success": rep.tolist(), "interpolation_success": itp.tolist()}
     if has_val:
         res["curves"]["validation_replay_success"] = val.tolist()
+    if has_vi:
+        res["curves"]["validation_interpolation_success"] = vitp.tolist()
     return res
 
 
@@ -500,7 +517,8 @@ def results_markdown(res: dict) -> str:
         "| --- | --- | --- | --- |",
     ]
     if sel:
-        lines.append(f"| **selected on validation** (validation replay {_f(sel['validation_replay'])}) | "
+        vi = f", interpolation {_f(sel['validation_interpolation'])}" if sel.get("validation_interpolation") else ""
+        lines.append(f"| **selected on validation** (validation replay {_f(sel['validation_replay'])}{vi}) | "
                      f"{sel['checkpoint']} | **{_f(sel['replay'])}** ({_seeds(sel['replay'])}) | "
                      f"**{_f(sel['interpolation'])}** ({_seeds(sel['interpolation'])}) |")
     lines += [
@@ -519,11 +537,13 @@ def results_markdown(res: dict) -> str:
         "",
         "Strategies among successful interpolation rollouts:",
         "",
-        "| strategy | share (%) | share at the paper-protocol interpolation checkpoint (%) |",
-        "| --- | --- | --- |",
+        "| strategy | share (%) | share at the paper-protocol interpolation checkpoint (%) | share, validation "
+        "rollouts (%) |",
+        "| --- | --- | --- | --- |",
     ]
-    ppd = pp["interpolation"].get("strategy_distribution", {})
-    lines += [f"| {k} | {100 * v:.1f} | {100 * ppd.get(k, 0.0):.1f} |" for k, v in res["strategy_distribution"].items()]
+    ppd, vd = pp["interpolation"].get("strategy_distribution", {}), res.get("validation_strategy_distribution")
+    lines += [f"| {k} | {100 * v:.1f} | {100 * ppd.get(k, 0.0):.1f} | {f'{100 * vd.get(k, 0.0):.1f}' if vd else '-'} |"
+              for k, v in res["strategy_distribution"].items()]
     if res.get("replay_by_strategy"):
         lines += ["", "Replay success by the test demonstration's strategy (mean over seeds): "
                   + ", ".join(f"{k} {100 * v:.1f} %" for k, v in res["replay_by_strategy"].items())]

@@ -405,8 +405,9 @@ def _split_sets(out: dict, part: dict) -> dict:
     """One checkpoint's evaluation of the stacked batch (test, validation and the extra sets), split into its
     sets: ``extra`` holds each extra set's replay success."""
     t, v = part["test"], part["validation"]
+    interp = ("interp_success", "interp_strategy", "interp_metrics", "val_interp_success", "val_interp_strategy")
     r = {k: ({m: np.asarray(x) for m, x in out[k].items()} if isinstance(out[k], dict) else np.asarray(out[k]))
-         for k in ("interp_success", "interp_strategy", "interp_metrics")}
+         for k in interp}
     r["replay_success"] = np.asarray(out["replay_success"])[:, t]
     r["val_replay_success"] = np.asarray(out["replay_success"])[:, v]
     r["replay_metrics"] = {m: np.asarray(x)[:, t] for m, x in out["replay_metrics"].items()}

@@ -2,7 +2,7 @@
 
 * interpolation: ``eval_codes`` codes on a uniform grid over (-1, 1)^2; the co-policy acts for both agents
   deterministically (action means); success rate and the executed strategies. Run twice per checkpoint, from two
-  disjoint sets of initial states: the reported one (``EVAL_SEED``) and a validation one
+  independent draws of initial states: the reported one (``EVAL_SEED``) and a validation one
   (``VALIDATION_EVAL_SEED``), on which choices about diversity (a variant, its settings) are made.
 * replay: the robot acts with pi_R(s, psi(h)) (deterministic) against open-loop replays of held-out human
   trajectories, each episode started where its demonstration started; success rate. An episode ends at the

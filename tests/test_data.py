@@ -74,6 +74,10 @@ def test_default_demos_are_cached(fetchq, tmp_path, monkeypatch):
     data.ensure_default_demos(fetchq, "train", verbose=False)
     with h5py.File(p, "r") as f:
         assert f.attrs["env_version"] == fetchq.version
+    # so is one made when the split's default size was another (e.g. a validation split that grew)
+    monkeypatch.setitem(data.DEFAULT_NUM, "fetchq", 7)
+    data.ensure_default_demos(fetchq, "train", verbose=False)
+    assert data.load_demos(p, fetchq).num == 7
 
 
 def test_default_demos_of_another_size_get_their_own_file(fetchq, tmp_path, monkeypatch):

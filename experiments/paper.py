@@ -351,15 +351,18 @@ def shipped_rows(results: dict) -> list[str]:
 def validation_rows(results: dict) -> list[str]:
     """Every run's validation figures, on which checkpoints and variants are chosen: replay at the selected and the
     last checkpoint, interpolation from the validation initial states there, and its strategy shares (-: not
-    measured; runs evaluated before the validation interpolation)."""
-    lines = ["| run | replay: selected | replay: last | interpolation: selected | interpolation: last | strategies "
-             "(selected) |", "| --- | --- | --- | --- | --- | --- |"]
+    measured; runs evaluated before the validation interpolation), and the number of validation episodes each
+    checkpoint was replayed on (a task's runs are compared on one split: seqmanip's grew from 100 to 300)."""
+    lines = ["| run | episodes | replay: selected | replay: last | interpolation: selected | interpolation: last "
+             "| strategies (selected) |", "| --- | --- | --- | --- | --- | --- | --- |"]
     for k in sorted(results):
         r = results[k]
         sel, last = r.get("selected") or {}, r.get("last") or {}
         if not sel.get("validation_replay"):
             continue
-        cells = [_pct(d.get(f)) for f in ("validation_replay", "validation_interpolation") for d in (sel, last)]
+        episodes = (r.get("splits") or {}).get("validation", {}).get("episodes")
+        cells = [str(episodes) if episodes else "-"]
+        cells += [_pct(d.get(f)) for f in ("validation_replay", "validation_interpolation") for d in (sel, last)]
         shares = r.get("validation_strategy_distribution")
         cells.append(", ".join(f"{n} {100 * v:.0f} %" for n, v in shares.items()) if shares else "-")
         lines.append(f"| {k} | " + " | ".join(cells) + " |")

@@ -210,12 +210,13 @@ def test_every_run_has_a_row_of_its_validation_figures(tmp_path):
     new["selected"]["validation_interpolation"], new["last"]["validation_replay"] = _s(0.35), _s(0.45)
     new["last"]["validation_interpolation"] = _s(0.3)
     new["validation_strategy_distribution"] = {"hands-over": 0.25, "opens": 0.75}
+    new["splits"] = {"validation": {"file": "v.hdf5", "episodes": 300}, "test": {"file": "t.hdf5", "episodes": 60}}
     results = {"seqmanip/cogail/uniform/new": new, "seqmanip/cogail/uniform": _res(0.6, 0.5),
                "fetchq/diayn/uniform": {"replay_success": _s(0.9)}}  # made before the protocol: no row
     paper.tables(results, ["seqmanip"], ["cogail"], tmp_path)
     text = (tmp_path / "validation.md").read_text()
-    assert "| seqmanip/cogail/uniform/new | 50.0 | 45.0 | 35.0 | 30.0 | hands-over 25 %, opens 75 % |" in text
-    assert "| seqmanip/cogail/uniform | 50.0 | - | - | - | - |" in text
+    assert "| seqmanip/cogail/uniform/new | 300 | 50.0 | 45.0 | 35.0 | 30.0 | hands-over 25 %, opens 75 % |" in text
+    assert "| seqmanip/cogail/uniform | - | 50.0 | - | - | - | - |" in text
     assert "fetchq/diayn" not in text
 
 
@@ -235,6 +236,8 @@ def test_shipped_labels_match_the_task_configs():
         demos = re.search(r"(\d+)-demos", label)
         assert cfg.get("num_demos", 0) == (int(demos.group(1)) if demos else 0), (task, label)
         assert bool(cfg.get("policy_ema")) == ("policy-ema" in label), (task, label)
+        ema = re.search(r"policy-ema-(0\.\d+)", label)  # no value: the first average tried, 0.98
+        assert cfg.get("policy_ema", 0) == (float(ema.group(1)) if ema else 0.98 if "policy-ema" in label else 0)
         std = re.search(r"init-std-([\d.]+)", label)
         assert (round(math.exp(cfg["init_log_std"]), 2) if "init_log_std" in cfg else None) == (
             float(std.group(1)) if std else None), (task, label)

@@ -14,7 +14,7 @@ EXTRA ?=
 
 help:
 	@echo "make train [TASK=fetchq|handover|seqmanip] [METHOD=cogail|ma_infogail|ma_gail] [SEEDS=300,400,500] [BUDGET=paper|quick|2x] [RUN=dir]"
-	@echo "make eval RUN=dir | make test | make demos TASK=... | make video RUN=dir | make bench"
+	@echo "make eval RUN=dir | make test | make demos TASK=... (the run's datasets) | make video RUN=dir | make bench"
 	@echo "make paper [TASKS=fetchq,handover,seqmanip] [METHODS=...] | make install [CPU=1] [DRY_RUN=1]"
 
 $(BIN)/.installed: pyproject.toml
@@ -45,20 +45,22 @@ browser:
 	    || echo "warning: could not install chromium chromium-driver: tests/test_play.py will fail"; \
 	else echo "warning: chromium/chromedriver missing and no apt-get: tests/test_play.py will fail"; fi
 
-# Trains with the task's settings under experiments/, then evaluates every checkpoint.
-# Re-running the same command resumes an interrupted run from its last checkpoint.
+# Makes the run's datasets (kept in data/ and reused), trains with the task's settings under BUDGET, then evaluates
+# every checkpoint. Re-running the same command resumes an interrupted run from its last checkpoint.
+# TASK may also be your own task, e.g. TASK=examples.table_carry:TASK (docs/tasks.md).
+CONFIG_ARGS = --task $(TASK) --budget $(BUDGET) --method $(METHOD) --seeds $(SEEDS) $(EXTRA)
 train: install
-	$(BIN)/cogail train --config experiments/$(TASK)_$(BUDGET).json --task $(TASK) --method $(METHOD) \
-	  --seeds $(SEEDS) --run $(RUN) --eval $(if $(wildcard $(RUN)/config.json),--resume,) $(EXTRA)
+	$(BIN)/cogail data $(CONFIG_ARGS)
+	$(BIN)/cogail train $(CONFIG_ARGS) --run $(RUN) --eval $(if $(wildcard $(RUN)/config.json),--resume,)
 
 eval: install
 	$(BIN)/cogail eval --run $(RUN)
 
 demos: install
-	$(BIN)/cogail demos --task $(TASK) --num 60 --out data/$(TASK)_demos.hdf5
+	$(BIN)/cogail data $(CONFIG_ARGS)
 
 video: install
-	$(BIN)/cogail video --task $(TASK) $(if $(wildcard $(RUN)/config.json),--run $(RUN),) --out $(RUN)/rollouts.gif
+	$(BIN)/cogail video $(if $(wildcard $(RUN)/config.json),--run $(RUN),--task $(TASK)) --out $(RUN)/rollouts.gif
 
 # The suite in TEST_WORKERS processes (pytest-xdist), one test file per worker at a time, the heaviest files first
 # (tests/conftest.py). TEST_WORKERS=0 runs it in this process.
@@ -80,6 +82,7 @@ paper: install
 # The throughput table of TASK, then the seconds per phase (start, demos, bc, compile, train, eval, write) of every
 # run under runs/ that has a speed.json (e.g. the `make train` runs of each task).
 bench: install
+	$(BIN)/cogail data --task $(TASK) --no-robustness
 	$(BIN)/cogail bench $(TASK) runs/bench-$(TASK).json
 	@runs=$$(ls runs/*/speed.json 2>/dev/null | xargs -r -n1 dirname); \
 	if [ -n "$$runs" ]; then $(BIN)/cogail bench --phases $$runs; fi

@@ -1,28 +1,13 @@
-"""cogail_envs: the collaboration tasks (installed from the repository's ``envs/`` folder)."""
+"""cogail_envs: the task API (:mod:`.registry`) and the built-in collaboration tasks, one package each.
+
+``get_task(name_or_reference)`` returns a :class:`Task`; ``make_env`` builds its environment. A task from
+your own package is ``my_pkg.my_module:TASK`` (``docs/tasks.md``).
+"""
 from __future__ import annotations
 
-import importlib
-
 from .base import CollabEnv
+from .registry import (Task, Team, UnknownTaskError, builtin_task_names, get_task, make_env, register_task,
+                       task_names, team_of)
 
-TASKS = {
-    "fetchq": ("fetchq", "FetchQuest"),
-    "handover": ("handover", "Handover"),
-    "seqmanip": ("seqmanip", "SeqManip"),
-}
-
-
-class UnknownTaskError(ValueError):
-    pass
-
-
-def make_env(task: str, **kwargs) -> CollabEnv:
-    """Build a task environment by name (``fetchq``, ``handover``, ``seqmanip``)."""
-    if task not in TASKS:
-        raise UnknownTaskError(f"unknown task {task!r}: choose one of {', '.join(TASKS)}")
-    module, cls = TASKS[task]
-    mod = importlib.import_module(f"{__name__}.{module}")
-    return getattr(mod, cls)(**kwargs)
-
-
-__all__ = ["CollabEnv", "TASKS", "make_env", "UnknownTaskError"]
+__all__ = ["CollabEnv", "Task", "Team", "UnknownTaskError", "builtin_task_names", "get_task", "make_env",
+           "register_task", "task_names", "team_of"]

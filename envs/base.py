@@ -14,10 +14,12 @@ evaluation need:
 * ``strategy_names`` -- the paper's strategy labels; ids are 1..len(strategy_names), 0 means "none".
 * ``classify_strategy(metrics)`` -- label an executed episode from ``State.metrics`` at its last step
   (jittable, returns an int32; 0 when the episode did not succeed or fits no strategy).
-* ``team_init(rng, mix) -> (team_state, strategy)`` and ``team_act(team_state, state, rng) ->
-  (team_state, action)`` -- the scripted human-human team, pure JAX, vmappable. ``mix`` is a vector of
-  strategy probabilities (len(strategy_names)).
-* ``render(state) -> np.ndarray`` -- an RGB frame (H, W, 3) uint8 of one (unbatched) state.
+* ``render(state, width, height, camera=None) -> np.ndarray`` -- an RGB frame (H, W, 3) uint8 of one
+  (unbatched) state.
+* ``human_position(state)`` (optional) -- where the human agent is (shown by ``cogail play``).
+
+The scripted human-human team is not part of the env: it is the task's ``Team``
+(:mod:`cogail_envs.registry`), which reads the env's state as a person at the table would.
 * ``replay_hold(state, a_h) -> (wait, a_wait)`` (optional; default: never waits) -- the patient human of the
   replay protocol: whether a replayed human about to take its recorded action ``a_h`` waits instead, because that
   action would let go of something its partner has not taken yet, and what it does while it waits.
@@ -29,7 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import io
-from typing import Any, Sequence
+from typing import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -50,10 +52,6 @@ class CollabEnv(Env):
     max_episode_steps: int = 0
     init_size: int = 0
     strategy_names: Sequence[str] = ()
-    discriminator_loss: str = "lsgan"  # "bce" for fetchq, "lsgan" for the manipulation tasks
-    # team_init takes ``variation | teams.FOLLOWING_PARTNER``: a scripted robot that follows the human's apparent
-    # strategy under a change of mind (the training sets' varied humans; envs/teams/__init__.py)
-    partner_can_follow: bool = False
 
     @property
     def action_size(self) -> int:
@@ -79,14 +77,12 @@ class CollabEnv(Env):
     def classify_strategy(self, metrics: dict[str, jax.Array]) -> jax.Array:
         raise NotImplementedError
 
-    def team_init(self, rng: jax.Array, mix: jax.Array) -> tuple[Any, jax.Array]:
+    def render(self, state: State, width: int = 320, height: int = 240, camera: str | None = None):
         raise NotImplementedError
 
-    def team_act(self, team_state: Any, state: State, rng: jax.Array) -> tuple[Any, jax.Array]:
-        raise NotImplementedError
-
-    def render(self, state: State):
-        raise NotImplementedError
+    def human_position(self, state: State) -> jax.Array:
+        """Where the human agent is (any units; ``cogail play`` shows it); empty where the task does not say."""
+        return jnp.zeros((0,))
 
     def time_limit(self, t: jax.Array, terminal: jax.Array) -> tuple[jax.Array, jax.Array]:
         """``(done, truncation)`` (float32) for a step that reached step count ``t`` with ``terminal`` (bool:

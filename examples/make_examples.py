@@ -37,7 +37,7 @@ MAPPING = {
 def main(num_npz: int = 6, num_hdf5: int = 4) -> None:
     import cogail_envs
 
-    from cogail_jax import demos
+    from cogail_jax.data import generate as demos
 
     env = cogail_envs.make_env("fetchq")
     eps = demos.generate(env, num_npz + num_hdf5, seed=7)

@@ -21,8 +21,10 @@ def main():
     a = p.parse_args()
     import cogail_envs
 
-    from cogail_jax import bench, data, train
-    from cogail_jax.config import TrainConfig
+    from cogail_jax.apps import bench
+    from cogail_jax.data import io as data
+    from cogail_jax.algo import train
+    from cogail_jax.algo.config import TrainConfig
 
     env = cogail_envs.make_env(a.task)
     expert = train.expert_arrays(data.load_demos(data.ensure_default_demos(env, "train"), env), 4)

@@ -4,7 +4,8 @@ fetchq for the D1 / D2 mixtures), for every task x method (3 seeds each, one vma
     python experiments/paper.py --tasks fetchq --methods cogail,ma_gail --out results/paper [--mixes uniform,D1,D2]
     python experiments/paper.py --out docs/results/paper --tables-only --readme README.md
 
-Each (task, method, mixture) trains with ``experiments/<task>_paper.json`` (plus ``--set``) into
+Each (task, method, mixture) makes its datasets (``cogail data``) and trains with the task's settings
+(``cogail_envs.<task>.config``, plus ``--set``) into
 ``<out>/runs/<task>-<method>-<mix>-<hash>``, where ``<hash>`` is a short hash of the fully resolved training
 config: a run is reused (resumed if interrupted) only if its config is the same, and any change (a ``--set``, a
 new default) trains a new run. Every checkpoint is evaluated (``cogail eval``'s protocol); ``<out>/paper.json``
@@ -32,20 +33,18 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 
-PAPER_REPLAY = {  # Table 1 of the paper (mean, std in %)
-    "bc_single": {"fetchq": (21.1, 1.9), "handover": (13.3, 3.3), "seqmanip": (15.0, 2.3)},
-    "bc_gail": {"fetchq": (27.2, 5.0), "handover": (14.1, 4.6), "seqmanip": (16.6, 7.1)},
-    "ma_gail": {"fetchq": (30.0, 3.4), "handover": (23.7, 5.3), "seqmanip": (21.0, 3.7)},
-    "ma_infogail": {"fetchq": (40.0, 1.7), "handover": (27.8, 4.4), "seqmanip": (26.6, 8.8)},
-    "diayn": {"fetchq": (44.4, 8.4), "handover": (22.7, 1.5), "seqmanip": (18.3, 7.1)},
-    "cogail": {"fetchq": (53.3, 4.4), "handover": (43.9, 6.3), "seqmanip": (40.0, 8.2)},
-}
-PAPER_INTERP = {  # Table 2 of the paper
-    "ma_gail": {"fetchq": (78.5, 7.2), "handover": (99.2, 1.4), "seqmanip": (46.2, 10.3)},
-    "ma_infogail": {"fetchq": (80.2, 3.0), "handover": (96.4, 4.1), "seqmanip": (51.7, 7.5)},
-    "diayn": {"fetchq": (80.2, 3.6), "handover": (86.2, 9.0), "seqmanip": (45.4, 7.9)},
-    "cogail": {"fetchq": (82.1, 3.1), "handover": (81.2, 3.1), "seqmanip": (31.6, 2.5)},
-}
+def paper_figures(column: str) -> dict:
+    """The paper's figures (Table 1 ``replay``, Table 2 ``interpolation``) as {method: {task: (mean, std)}}, from
+    the built-in tasks' settings (``Task.paper``)."""
+    from cogail_envs import builtin_task_names, get_task
+
+    out: dict = {}
+    for t in builtin_task_names():
+        for m, fig in get_task(t).paper.get(column, {}).items():
+            out.setdefault(m, {})[t] = fig
+    return out
+
+
 MIX_SHARES = {"D1": (17, 17, 33, 33), "D2": (33, 33, 17, 17)}  # the demonstrations' strategy shares (%), Fig. 3
 KEEP = ("task", "method", "seeds", "checkpoints", "paper_protocol", "selected", "last", "per_seed_best",
         "breakdowns_at", "strategy_distribution", "strategy_distribution_per_seed", "replay_by_strategy",
@@ -53,13 +52,11 @@ KEEP = ("task", "method", "seeds", "checkpoints", "paper_protocol", "selected", 
         "validation_strategy_distribution")  # what paper.json keeps of results.json
 
 
-def resolve_config(task, method, mix, seeds, extra: dict):
-    from cogail_jax.config import TrainConfig
+def resolve_config(task, method, mix, seeds, extra: dict, budget: str = "paper"):
+    """The run's config as `cogail train --task T --budget B --set ...` resolves it."""
+    from cogail_jax.algo.config import resolve
 
-    fields = json.loads((ROOT / f"{task}_paper.json").read_text())
-    fields.pop("_comment", None)
-    return TrainConfig.from_dict({**fields, **extra, "task": task, "method": method, "mix": mix,
-                                  "seeds": tuple(seeds)}).validate()
+    return resolve(task, budget, {**extra, "method": method, "mix": mix, "seeds": tuple(seeds)})
 
 
 def config_hash(cfg) -> str:
@@ -75,12 +72,12 @@ def validation_robustness_sets(task, mix) -> dict:
     """The varied humans drawn from the validation split (``val-robust-<variation>``), replayed at every checkpoint
     beside the test ones, so that robustness-oriented choices (a variant, its settings) are made on validation."""
     import cogail_envs
-    from cogail_jax import robustness
+    from cogail_jax.data import varied as robustness
 
-    from cogail_jax.data import ensure_default_demos
-    from cogail_jax.trainer import PATIENT
+    from cogail_jax.data.io import ensure_default_demos
+    from cogail_jax.apps.eval_runner import PATIENT
 
-    env = cogail_envs.make_env(task)
+    env = cogail_envs.make_env(task)  # made here, explicitly: the evaluation itself only reads data
     sets = {"val-" + name: str(path)
             for name, path in robustness.ensure_robustness_sets(env, mix=mix, split="validation").items()}
     if env.has_patient_replay:  # and with a patient human, as the test's (choices on the patient protocol)
@@ -91,18 +88,20 @@ def validation_robustness_sets(task, mix) -> dict:
 
 def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1,
             ckpt_batch: int | None = None) -> dict:
-    from cogail_jax import trainer
-    from cogail_jax.config import TrainConfig
+    from cogail_jax.algo.config import TrainConfig
+    from cogail_jax.apps import eval_runner, train_loop
+    from cogail_jax.data.sets import make_datasets
 
     cfg = resolve_config(task, method, mix, seeds, extra)
+    make_datasets(cfg)  # `cogail data`
     run = run_dir(out, cfg)
     saved = run / "config.json"
     resume = saved.exists() and TrainConfig.load(saved) == cfg  # the same resolved config: resume / reuse
     if saved.exists() and not resume:
         raise SystemExit(f"{run} holds a run of another config: remove it")
     kept = {}
-    trainer.train_run(cfg, run, resume=resume, progress=False, keep=kept)
-    res = trainer.eval_run(run, progress=False, every=every, robustness=True, ckpt_batch=ckpt_batch, memory=kept,
+    train_loop.train_run(cfg, run, resume=resume, progress=False, keep=kept)
+    res = eval_runner.eval_run(run, progress=False, every=every, robustness=True, ckpt_batch=ckpt_batch, memory=kept,
                            extra_sets=validation_robustness_sets(task, mix))
     return {**{k: res[k] for k in KEEP if k in res}, "config_hash": config_hash(cfg), "run": str(run),
             "eval_every": every}
@@ -370,8 +369,8 @@ def validation_rows(results: dict) -> list[str]:
 
 
 def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None) -> None:
-    t1 = table(results, tasks, methods, "replay", PAPER_REPLAY)
-    t2 = table(results, tasks, methods, "interpolation", PAPER_INTERP)
+    t1 = table(results, tasks, methods, "replay", paper_figures("replay"))
+    t2 = table(results, tasks, methods, "interpolation", paper_figures("interpolation"))
     f3 = fig3_rows(results, methods)
     rob, stab, var = robustness_rows(results, tasks, methods), stability_rows(results), variant_rows(results)
     for name, title, rows in (("robustness.md", "Replay against varied humans (%, selected checkpoint, test)", rob),
@@ -461,7 +460,7 @@ def table_axes(results: dict, tasks, methods):
 
 
 def parse_sets(items) -> dict:
-    from cogail_jax.cli import parse_field
+    from cogail_jax.apps.cli import parse_field
 
     extra = {}
     for item in items:
@@ -502,7 +501,7 @@ def main(argv=None) -> int:
                    help="do not keep compiled programs between runs (as `cogail train --no-compile-cache`)")
     a = p.parse_args(argv)
     sys.path.insert(0, str(ROOT.parent / "src"))
-    from cogail_jax.cli import enable_compile_cache, set_deterministic
+    from cogail_jax.apps.cli import enable_compile_cache, set_deterministic
 
     set_deterministic(not a.nondeterministic)  # before JAX starts
     enable_compile_cache(not a.no_compile_cache)

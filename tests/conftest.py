@@ -31,12 +31,12 @@ if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
     os.environ["JAX_COMPILATION_CACHE_DIR"] = _CACHE
     atexit.register(shutil.rmtree, _CACHE, ignore_errors=True)
 # The `cogail` commands the tests run (in this process and in subprocesses) keep their compiled programs there
-# too, never in the user's cache folder (cogail_jax.xla.enable_compile_cache).
+# too, never in the user's cache folder (cogail_jax.runtime.xla.enable_compile_cache).
 os.environ.setdefault("COGAIL_CACHE", os.environ["JAX_COMPILATION_CACHE_DIR"])
 
 import pytest
 
-from cogail_jax.config import TrainConfig
+from cogail_jax.algo.config import TrainConfig
 
 TINY = dict(task="fetchq", num_envs=4, unroll_length=16, updates_per_call=2, checkpoint_every=2,
             total_steps=4 * 16 * 6, ppo_epochs=2, num_minibatches=2, inner_updates=2, inner_batch=32,
@@ -52,19 +52,22 @@ def fetchq():
 
 @pytest.fixture(scope="session")
 def demo_files(tmp_path_factory, fetchq):
-    """A small training file and a held-out file (scripted fetchq demonstrations)."""
-    from cogail_jax import data, demos
+    """A small training file, a held-out (test) file and a validation file (scripted fetchq demonstrations): the
+    runs of the tests are given their data, as `cogail data` gives a user's (nothing makes data on the side)."""
+    from cogail_jax.data import io as data
+    from cogail_jax.data import generate as demos
 
     d = tmp_path_factory.mktemp("demos")
     train = data.save_demos(d / "train.hdf5", fetchq, demos.generate(fetchq, 12, seed=0), seed=0)
     held = data.save_demos(d / "heldout.hdf5", fetchq, demos.generate(fetchq, 4, seed=1), seed=1)
-    return train, held
+    val = data.save_demos(d / "validation.hdf5", fetchq, demos.generate(fetchq, 4, seed=2), seed=2)
+    return train, held, val
 
 
 @pytest.fixture(scope="session")
 def tiny_cfg(demo_files):
-    train, held = demo_files
-    return TrainConfig(**TINY, seeds=(3, 5), demos=str(train), heldout=str(held))
+    train, held, val = demo_files
+    return TrainConfig(**TINY, seeds=(3, 5), demos=str(train), heldout=str(held), validation=str(val))
 
 
 # Scheduling for `make test` (pytest -n 2 --dist loadfile --no-loadscope-reorder): each test file runs on one

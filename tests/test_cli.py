@@ -4,8 +4,9 @@ import sys
 
 import numpy as np
 import pytest
+from cogail_envs import get_task
 
-from cogail_jax import cli
+from cogail_jax.apps import cli
 
 
 @pytest.mark.parametrize("cmd", [[], ["demos"], ["train"], ["eval"], ["video"], ["bench"]])
@@ -17,7 +18,7 @@ def test_help(cmd, capsys):
 
 
 def run(*args):
-    return subprocess.run([sys.executable, "-m", "cogail_jax.cli", *args], capture_output=True, text=True, timeout=300)
+    return subprocess.run([sys.executable, "-m", "cogail_jax.apps.cli", *args], capture_output=True, text=True, timeout=300)
 
 
 def test_demos_command(tmp_path):
@@ -74,10 +75,15 @@ def test_bad_flags(args):
 def test_bench_tiny_writes_json(tmp_path, monkeypatch):
     import json
 
-    from cogail_jax import bench, data
+    from cogail_jax.apps import bench
+    from cogail_jax.data import io as data
 
     monkeypatch.setenv("COGAIL_DATA", str(tmp_path / "data"))
-    monkeypatch.setitem(data.DEFAULT_NUM, "fetchq", 4)
+    for split in ("train", "validation", "test"):
+        monkeypatch.setitem(get_task("fetchq").splits, split, 4)
+    with pytest.raises(data.MissingDataError, match="cogail data"):  # benchmarks make no data
+        bench.main("fetchq", (4,), str(tmp_path / "x.json"), steps=4, unroll=8, calls=1, peer=False)
+    assert cli.main(["data", "--task", "fetchq", "--set", "train_varied=0", "--no-robustness"]) == 0
     out = tmp_path / "bench.json"
     assert cli.main(["bench", "fetchq", str(out), "--sizes", "4", "--steps", "4", "--unroll", "8", "--calls", "1"]) == 0
     rows = json.loads(out.read_text())["rows"]
@@ -100,10 +106,10 @@ def test_video_of_scripted_demos(tmp_path):
 def test_video_of_a_run_has_interpolation_and_replay_rows(tiny_cfg, tmp_path):
     import imageio.v2 as imageio
 
-    from cogail_jax import trainer
+    from cogail_jax.apps import runs, train_loop
 
     run = tmp_path / "run"
-    trainer.train_run(tiny_cfg.replace(seeds=(3,)), run, progress=False, stop_after=0)
+    train_loop.train_run(tiny_cfg.replace(seeds=(3,)), run, progress=False, stop_after=0)
     out = tmp_path / "run.gif"
     assert cli.main(["video", "--task", "fetchq", "--run", str(run), "--num", "2", "--steps", "6", "--out", str(out)]) == 0
     frames = imageio.mimread(out)
@@ -128,7 +134,7 @@ def test_brax_shim_places_like_pmap_so_the_epoch_compiles_once():
     import jax
     import jax.numpy as jnp
 
-    from cogail_jax import bench
+    from cogail_jax.apps import bench
 
     compiles = []
     jax.monitoring.register_event_duration_secs_listener(
@@ -153,7 +159,7 @@ def test_set_parses_booleans(text, value):
 
 
 def test_set_parses_numbers_seeds_and_optional_files():
-    from cogail_jax.config import ConfigError
+    from cogail_jax.algo.config import ConfigError
 
     a = cli.build_parser().parse_args(["train", "--run", "x", "--set", "total_steps=1e6", "--set", "lr=2e-4",
                                        "--set", "seeds=1,2", "--set", "validation=v.hdf5", "--set", "heldout=none"])
@@ -170,14 +176,14 @@ def test_set_parses_numbers_seeds_and_optional_files():
 def test_the_cli_makes_gpu_execution_deterministic_by_default(extra, want, tmp_path, monkeypatch):
     """Every command sets XLA_FLAGS (appending to what is there) before JAX starts; --nondeterministic
     removes the flag; run_info.json records the setting."""
-    from cogail_jax import trainer
+    from cogail_jax.apps import runs, train_loop
 
     monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/nowhere --xla_gpu_deterministic_ops=true")
     assert cli.main(["report", "--run", str(tmp_path / "none"), *extra]) == 2  # parses, sets, then fails
     flags = __import__("os").environ["XLA_FLAGS"].split()
     assert flags[0] == "--xla_dump_to=/tmp/nowhere"
     assert ("--xla_gpu_deterministic_ops=true" in flags) is want and cli.deterministic_ops() is want
-    assert trainer.run_metadata()["xla_gpu_deterministic_ops"] is want
+    assert runs.run_metadata()["xla_gpu_deterministic_ops"] is want
     monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/nowhere")
     assert cli.main(["report", "--run", str(tmp_path / "none"), *extra]) == 2
     assert __import__("os").environ["XLA_FLAGS"] == "--xla_dump_to=/tmp/nowhere" + (
@@ -208,9 +214,10 @@ def test_train_with_eval_prepares_the_evaluation_while_training(demo_files, fetc
     """`cogail train --eval`: the evaluation's sets and programs are made ready in the background during training
     (speed.json's eval_parts.prepared), and the evaluation reports every checkpoint. A validation file that cannot
     be read ends the command in one sentence after training, whose checkpoints are kept."""
-    from cogail_jax import data, demos
+    from cogail_jax.data import io as data
+    from cogail_jax.data import generate as demos
 
-    train, held = demo_files
+    train, held, _ = demo_files
     val = data.save_demos(tmp_path / "val.hdf5", fetchq, demos.generate(fetchq, 4, seed=2), seed=2)
     run = tmp_path / "run"
     assert _tiny_train_eval(run, train, held, val) == 0

@@ -1,8 +1,9 @@
 import h5py
 import numpy as np
 import pytest
+from cogail_envs import get_task
 
-from cogail_jax import data
+from cogail_jax.data import io as data
 
 
 def test_round_trip(demo_files, fetchq):
@@ -61,7 +62,7 @@ def test_loader_not_hdf5_and_missing(fetchq, tmp_path):
 
 def test_default_demos_are_cached(fetchq, tmp_path, monkeypatch):
     monkeypatch.setenv("COGAIL_DATA", str(tmp_path))
-    monkeypatch.setitem(data.DEFAULT_NUM, "fetchq", 5)
+    monkeypatch.setitem(get_task("fetchq").splits, "train", 5)
     p = data.ensure_default_demos(fetchq, "train", verbose=False)
     assert p.exists() and data.load_demos(p, fetchq).num == 5
     mtime = p.stat().st_mtime
@@ -75,32 +76,32 @@ def test_default_demos_are_cached(fetchq, tmp_path, monkeypatch):
     with h5py.File(p, "r") as f:
         assert f.attrs["env_version"] == fetchq.version
     # so is one made when the split's default size was another (e.g. a validation split that grew)
-    monkeypatch.setitem(data.DEFAULT_NUM, "fetchq", 7)
+    monkeypatch.setitem(get_task("fetchq").splits, "train", 7)
     data.ensure_default_demos(fetchq, "train", verbose=False)
     assert data.load_demos(p, fetchq).num == 7
 
 
 def test_default_demos_of_another_size_get_their_own_file(fetchq, tmp_path, monkeypatch):
     """num_demos / ensure_default_demos(num=N): N scripted demos in a file of their own, beside the default."""
-    from cogail_jax.config import ConfigError, TrainConfig
+    from cogail_jax.algo.config import ConfigError, TrainConfig
 
     monkeypatch.setenv("COGAIL_DATA", str(tmp_path))
-    monkeypatch.setitem(data.DEFAULT_NUM, "fetchq", 5)
+    monkeypatch.setitem(get_task("fetchq").splits, "train", 5)
     p5 = data.ensure_default_demos(fetchq, "train", verbose=False)
     p7 = data.ensure_default_demos(fetchq, "train", verbose=False, num=7)
     assert p7 != p5 and p7.name == "fetchq_uniform_train_7.hdf5" and p5.name == "fetchq_uniform_train.hdf5"
     assert data.load_demos(p5, fetchq).num == 5 and data.load_demos(p7, fetchq).num == 7
     assert data.ensure_default_demos(fetchq, "train", verbose=False, num=5) == p5  # the default count: same file
-    from cogail_jax import trainer
+    from cogail_jax.apps import runs
 
-    s = trainer.build(TrainConfig(task="fetchq", num_demos=7), need_heldout=False)  # the trainer asks for them
+    s = runs.build(TrainConfig(task="fetchq", num_demos=7), need_heldout=False)  # the trainer asks for them
     assert int(s.expert["demo"].max()) + 1 == 7
     with pytest.raises(ConfigError, match="num_demos"):
         TrainConfig(num_demos=-1).validate()
 
 
 def test_ten_thousand_demos_one_call(fetchq):
-    from cogail_jax import demos
+    from cogail_jax.data import generate as demos
 
     eps = demos.generate(fetchq, 10000, seed=2)
     assert eps.obs.shape[0] == 10000 and eps.success.mean() > 0.99

@@ -1,9 +1,12 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+from cogail_envs import get_task
 import pytest
 
-from cogail_jax import demos
+from cogail_jax.data import generate as demos
+
+TEAM = get_task("fetchq").team
 
 
 @pytest.fixture(scope="module")
@@ -67,11 +70,11 @@ def test_robot_watches_the_human(fetchq):
     def roll(key):
         k_init, k_team, k_run = jax.random.split(key, 3)
         state = fetchq.reset_from(fetchq.sample_init(k_init))
-        ts, strategy = fetchq.team_init(k_team, fetchq.uniform_mix())
+        ts, strategy = TEAM.init(fetchq, k_team, fetchq.uniform_mix())
 
         def body(carry, k):
             state, ts = carry
-            ts, a = fetchq.team_act(ts, state, k)
+            ts, a = TEAM.act(fetchq, ts, state, k)
             return (fetchq.step(state, a), ts), (a[2:], ts.strategy[1])
 
         _, (a_robot, known) = jax.lax.scan(body, (state, ts), jax.random.split(k_run, steps))
@@ -89,9 +92,9 @@ def test_robot_watches_the_human(fetchq):
 def test_mixture_proportions(fetchq, name):
     w = demos.resolve_mix(fetchq, name)
     n = 6000
-    _, strat = jax.vmap(fetchq.team_init, in_axes=(0, None))(jax.random.split(jax.random.PRNGKey(1), n), w)
+    _, strat = jax.vmap(lambda k, m: TEAM.init(fetchq, k, m), in_axes=(0, None))(jax.random.split(jax.random.PRNGKey(1), n), w)
     freq = np.bincount(np.asarray(strat), minlength=5)[1:] / n
-    expected = np.asarray(demos.MIXTURES[name])
+    expected = np.asarray(get_task("fetchq").mixtures[name])
     assert np.all(np.abs(freq - expected) < 4 * np.sqrt(expected * (1 - expected) / n))
 
 

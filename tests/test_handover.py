@@ -7,7 +7,11 @@ import numpy as np
 import pytest
 
 from cogail_envs import mjx_common as mc
-from cogail_envs.handover import H_HOLD, Handover
+from cogail_envs import get_task
+from cogail_envs.handover.env import Handover
+from cogail_envs.handover.team import H_HOLD
+
+TEAM = get_task("handover").team
 
 REPEATS = 2  # scripted episodes per region
 RELEASE_AT = 200  # step at which the "drop" episode opens the human's gripper
@@ -29,11 +33,11 @@ def rollout(env):
     def one(rng, mix, robot_on, release_at):
         k0, k1, k2 = jax.random.split(rng, 3)
         state = env.reset(k0)
-        ts, sid = env.team_init(k1, mix)
+        ts, sid = TEAM.init(env, k1, mix)
 
         def body(carry, key):
             state, ts, finished, metrics = carry
-            ts, a = env.team_act(ts, state, key)
+            ts, a = TEAM.act(env, ts, state, key)
             a = a.at[7:].multiply(robot_on)  # idle robot: all-zero action
             a = a.at[6].set(jnp.where(state.info["t"] >= release_at, 1.0, a[6]))  # forced human release
             nxt = env.step(state, a)

@@ -6,7 +6,8 @@ import h5py
 import numpy as np
 import pytest
 
-from cogail_jax import cli, data
+from cogail_jax.apps import cli
+from cogail_jax.data import io as data
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 NPZ = EXAMPLES / "fetchq_demos.npz"
@@ -84,7 +85,7 @@ def test_import_robomimic_style_with_keys_on_the_command_line(tmp_path, capsys, 
 
 def test_import_npz_object_arrays_and_pairs(tmp_path, fetchq):
     """Per-demo object arrays with separate human / robot actions; obs with the final state included."""
-    from cogail_jax.importer import import_demos
+    from cogail_jax.data.importer import import_demos
 
     z = np.load(NPZ)
     lens = z["length"]
@@ -105,7 +106,7 @@ def test_import_npz_object_arrays_and_pairs(tmp_path, fetchq):
 
 
 def test_import_project_file_is_a_validated_copy(tmp_path, fetchq):
-    from cogail_jax.importer import import_demos
+    from cogail_jax.data.importer import import_demos
 
     train = tmp_path / "train.hdf5"
     import_demos(NPZ, train, "fetchq")

@@ -79,7 +79,7 @@ def test_dry_run_from_the_environment_runs_nothing(tmp_path):
 def test_train_start_lines_name_the_device_and_warn_on_paper_sized_mjx_runs_on_a_cpu():
     from types import SimpleNamespace
 
-    from cogail_jax.devices import cpu_warning, describe_devices
+    from cogail_jax.runtime.devices import cpu_warning, describe_devices
 
     assert describe_devices().startswith("device: cpu")
     paper = SimpleNamespace(task="handover", total_steps=1_804_800, seeds=(300, 400, 500))

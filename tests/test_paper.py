@@ -221,16 +221,17 @@ def test_every_run_has_a_row_of_its_validation_figures(tmp_path):
 
 
 def test_shipped_labels_match_the_task_configs():
-    """SHIPPED and BUDGETS name, per task and budget, the variant with experiments/<task>_<budget>.json's settings:
-    keep them in step (the label's parts: train-varied-N, N-demos, policy-ema, init-std-S, bc-std, the budget)."""
+    """SHIPPED and BUDGETS name, per task and budget, the variant with the task's settings under that budget: keep
+    them in step (the label's parts: train-varied-N, N-demos, policy-ema, init-std-S, bc-std, the budget)."""
     import math
     import re
 
-    root = Path(__file__).parents[1] / "experiments"
+    from cogail_envs import builtin_task_names, get_task
+
     runs = paper.shipped_runs()
-    assert {t for t, b, _ in runs if b == "paper"} == {"fetchq", "handover", "seqmanip"}
+    assert {t for t, b, _ in runs if b == "paper"} == set(builtin_task_names())
     for task, budget, label in runs:
-        cfg = json.loads((root / f"{task}_{budget}.json").read_text())
+        cfg = get_task(task).config(budget)
         varied = re.search(r"train-varied-(\d+)", label)
         assert cfg.get("train_varied", 0) == (int(varied.group(1)) if varied else 0), (task, label)
         demos = re.search(r"(\d+)-demos", label)
@@ -245,14 +246,18 @@ def test_shipped_labels_match_the_task_configs():
         assert (budget == "paper") == (not label.startswith(budget)), (task, label)
 
 
-def test_every_experiment_config_is_a_valid_train_config():
-    """`make train BUDGET=b` reads experiments/<task>_<b>.json: each must load and validate for its own task."""
-    from cogail_jax.config import TrainConfig
+def test_every_task_budget_is_a_valid_train_config():
+    """`cogail train --task T --budget B` resolves the task's settings: every task and budget validates, a budget only
+    overrides the task's defaults (it is not a copy of them), and an unknown budget is one sentence."""
+    from cogail_envs import builtin_task_names, get_task
+    from cogail_jax.algo.config import ConfigError, resolve
 
-    files = sorted((Path(__file__).parents[1] / "experiments").glob("*_*.json"))
-    assert {f.stem for f in files} >= {"fetchq_paper", "fetchq_quick", "handover_paper", "handover_2x", "seqmanip_paper"}
-    for f in files:
-        d = json.loads(f.read_text())
-        d.pop("_comment", None)
-        cfg = TrainConfig.from_dict(d).validate()
-        assert cfg.task == f.stem.split("_")[0], f.name
+    for t in builtin_task_names():
+        task = get_task(t)
+        assert resolve(t).task == t
+        for b, over in task.budgets.items():
+            cfg, base = resolve(t, b), resolve(t)
+            assert over and all(task.default_config().get(k) != v for k, v in over.items()), (t, b)
+            assert {k for k in cfg.__dataclass_fields__ if getattr(cfg, k) != getattr(base, k)} == set(over), (t, b)
+    with pytest.raises(ConfigError, match="no budget 'huge'"):
+        resolve("fetchq", "huge")

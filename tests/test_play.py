@@ -12,17 +12,34 @@ import h5py
 import numpy as np
 import pytest
 
-from cogail_jax import cli, play, trainer
+from cogail_jax.apps import cli
+from cogail_jax.apps import play
+from cogail_jax.apps import train_loop
 
 MAX_STEPS = 30
 
 
 @pytest.fixture(scope="module")
 def run_dir(tiny_cfg, tmp_path_factory):
-    """A one-seed fetchq run holding only its initial checkpoint (no training: the page is under test)."""
-    run = tmp_path_factory.mktemp("play") / "run"
-    trainer.train_run(tiny_cfg.replace(seeds=(3,)), run, progress=False, stop_after=0)
+    """A one-seed fetchq run holding only its initial checkpoint (no training: the page is under test), whose
+    demonstration files are gone afterwards: play and video need none."""
+    d = tmp_path_factory.mktemp("play")
+    files = {k: shutil.copy(getattr(tiny_cfg, k), d / f"{k}.hdf5") for k in ("demos", "heldout", "validation")}
+    run = d / "run"
+    train_loop.train_run(tiny_cfg.replace(seeds=(3,), **{k: str(v) for k, v in files.items()}), run, progress=False,
+                         stop_after=0)
+    for f in files.values():
+        f.unlink()
     return run
+
+
+def test_video_of_a_run_needs_no_demonstrations(run_dir, tmp_path, capsys):
+    import imageio.v2 as imageio
+
+    out = tmp_path / "run.gif"
+    assert cli.main(["video", "--run", str(run_dir), "--num", "2", "--steps", "6", "--out", str(out)]) == 0
+    assert "no replay row" in capsys.readouterr().out  # the test split's humans are gone: interpolation only
+    assert imageio.mimread(out)[0].shape == (256, 512, 3)
 
 
 @pytest.fixture(scope="module")
@@ -152,7 +169,7 @@ def _free_port():
 
 @pytest.mark.parametrize("case", ["unknown run", "other task", "port in use"])
 def test_bad_input_is_one_clear_sentence(case, run_dir, tmp_path, capsys):
-    from cogail_jax.config import TrainConfig
+    from cogail_jax.algo.config import TrainConfig
 
     holder = None
     if case == "unknown run":

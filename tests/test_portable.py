@@ -11,8 +11,9 @@ import jax
 import numpy as np
 import pytest
 
-from cogail_jax import checkpoint as ckpt
-from cogail_jax import cli, trainer
+from cogail_jax.runtime import checkpoint as ckpt
+from cogail_jax.apps import cli
+from cogail_jax.apps import eval_runner, runs, train_loop
 
 # as tests/test_sharding.py: the 2-device subprocesses check layouts, not speed (and share compiled programs
 # through the test run's compilation cache: the same flags give the same cache keys)
@@ -28,7 +29,7 @@ def _on_two_devices(body: str, cwd) -> str:
 
 
 def _leaves(run, step, cfg):
-    s = trainer.build(cfg, need_heldout=False)
+    s = runs.build(cfg, need_heldout=False)
     state = ckpt.restore(ckpt.manager(run), step, jax.eval_shape(lambda: s.init(cfg.seeds, s.expert)))
     assert {d.platform for x in jax.tree.leaves(state) for d in x.sharding.device_set} == {"cpu"}
     return [np.asarray(x) for x in jax.tree.leaves(jax.device_get(state))]
@@ -52,11 +53,12 @@ def two_dev_run(cfg, tmp_path_factory):
     run, truth = d / "run", d / "truth2.npz"
     _on_two_devices(f"""
         import json, numpy as np, orbax.checkpoint as ocp
-        from cogail_jax import checkpoint as ckpt, trainer
-        from cogail_jax.config import TrainConfig
+        from cogail_jax.runtime import checkpoint as ckpt
+        from cogail_jax.apps import eval_runner, runs, train_loop
+        from cogail_jax.algo.config import TrainConfig
         cfg = TrainConfig.from_dict(json.loads({cfg.to_json()!r}))
-        trainer.train_run(cfg, {str(run)!r}, progress=False, devices=2, stop_after=2)
-        s = trainer.build(cfg, need_heldout=False)
+        train_loop.train_run(cfg, {str(run)!r}, progress=False, devices=2, stop_after=2)
+        s = runs.build(cfg, need_heldout=False)
         ab = ckpt._abstract_for_disk(jax.eval_shape(lambda: s.init(cfg.seeds, s.expert)))
         raw = ckpt.manager({str(run)!r}).restore(2, args=ocp.args.StandardRestore(ab))
         assert len(jax.tree.leaves(raw)[0].sharding.device_set) == 2
@@ -75,7 +77,7 @@ def resumed_on_one(cfg, two_dev_run, tmp_path_factory):
 
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
-        trainer.train_run(cfg, run, resume=True, progress=False, stop_after=4)
+        train_loop.train_run(cfg, run, resume=True, progress=False, stop_after=4)
     return run, out.getvalue()
 
 
@@ -95,7 +97,7 @@ def test_two_devices_to_one_eval_and_resume(cfg, two_dev_run, resumed_on_one):
     info = json.loads((run / "run_info.json").read_text())
     assert info["layout"]["device_count"] == 1
     assert [(x["from_update"], x["device_count"]) for x in info["layouts"]] == [(0, 2), (2, 1)]
-    res = trainer.eval_run(run, progress=False)  # checkpoints of both layouts
+    res = eval_runner.eval_run(run, progress=False)  # checkpoints of both layouts
     assert res["checkpoints"] == [2, 4]
 
 
@@ -105,15 +107,17 @@ def test_one_device_to_two(cfg, resumed_on_one, tmp_path):
     np.savez(truth, *_leaves(run, 4, cfg))
     out = _on_two_devices(f"""
         import numpy as np
-        from cogail_jax import checkpoint as ckpt, cli, trainer
-        from cogail_jax.config import TrainConfig
+        from cogail_jax.runtime import checkpoint as ckpt
+        from cogail_jax.apps import cli
+        from cogail_jax.apps import eval_runner, runs, train_loop
+        from cogail_jax.algo.config import TrainConfig
         run = {str(run)!r}
         assert cli.main(["train", "--run", run, "--resume", "--devices", "2", "--no-progress"]) == 0
         mgr = ckpt.manager(run)
         assert ckpt.steps(mgr) == [0, 2, 4, 6], ckpt.steps(mgr)
         assert ckpt.saved_layout(mgr, 6)["device_count"] == 2
         cfg = TrainConfig.load(run + "/config.json")
-        s = trainer.build(cfg, need_heldout=False)
+        s = runs.build(cfg, need_heldout=False)
         st = ckpt.restore(mgr, 4, jax.eval_shape(lambda: s.init(cfg.seeds, s.expert)))
         truth = np.load({str(truth)!r})
         for i, x in enumerate(jax.tree.leaves(jax.device_get(st))):
@@ -136,7 +140,7 @@ def _damage(ckpt_dir: Path, how: str):
 def test_damaged_checkpoint_is_set_aside(cfg, two_dev_run, tmp_path, capsys):
     run = _copy(two_dev_run[0], tmp_path / "run")
     _damage(run / "checkpoints" / "2", "delete")
-    trainer.train_run(cfg, run, resume=True, progress=False, stop_after=0)
+    train_loop.train_run(cfg, run, resume=True, progress=False, stop_after=0)
     out = capsys.readouterr().out
     assert "checkpoint 2" in out and "damaged" in out and f"resuming {run} from update 0" in out
     assert [p.name.split(".")[0] for p in (run / "corrupt_checkpoints").iterdir()] == ["2"]
@@ -153,7 +157,7 @@ def test_eval_without_restorable_checkpoint_says_why(cfg, two_dev_run, tmp_path,
     assert "Traceback" not in err and err.strip().splitlines()[-1].startswith("cogail eval: error: "), err
     assert f"no checkpoint of {run} can be restored" in err and "another model" in err
     with pytest.raises(ckpt.CheckpointMismatch):
-        trainer.train_run(cfg.replace(history=2), run, resume=True, progress=False, stop_after=0)
+        train_loop.train_run(cfg.replace(history=2), run, resume=True, progress=False, stop_after=0)
     assert not (run / "corrupt_checkpoints").exists()
     # damaged files
     (run / "config.json").write_text(json.dumps(c))

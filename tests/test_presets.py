@@ -3,8 +3,9 @@ import jax
 import numpy as np
 import pytest
 
-from cogail_jax import data, train
-from cogail_jax.config import METHODS
+from cogail_jax.data import io as data
+from cogail_jax.algo import train
+from cogail_jax.algo.config import METHODS
 
 EXPECT = {
     # method: (keys that must be in the metrics, keys that must not)
@@ -79,8 +80,8 @@ BC_TERMS = {  # with bc_steps > 0: BC pre-training; psi learns the demonstration
 
 @pytest.mark.parametrize("method", METHODS)
 def test_objective_terms_table(method):
-    from cogail_jax import losses
-    from cogail_jax.config import TrainConfig
+    from cogail_jax.algo import losses
+    from cogail_jax.algo.config import TrainConfig
 
     base = TrainConfig(method=method)
     assert losses.objective_terms(base) == TERMS[method]
@@ -125,7 +126,7 @@ def test_only_la_lets_expert_actions_reach_psi(method, tiny_cfg, fetchq, expert)
     aux terms (L_a, L_r), of BC pre-training and of PPO+BC is exactly zero without L_a (psi's code enters
     through stop_gradient), nonzero for Co-GAIL's aux and BC objectives; psi learns from generated data (L_z,
     DIAYN's q fit) where the preset has a code."""
-    from cogail_jax import losses
+    from cogail_jax.algo import losses
 
     ctx, state, exp_b, gen_b, expert = _context(method, tiny_cfg, fetchq, expert)
     cfg, nets, params = ctx.cfg, ctx.nets, state.params
@@ -150,7 +151,7 @@ def test_only_la_lets_expert_actions_reach_psi(method, tiny_cfg, fetchq, expert)
 def test_bc_gail_trains_the_human_by_bc_only(tiny_cfg, fetchq, expert):
     """BC-GAIL: BC pre-training fits both agents (the robot as in every preset); afterwards neither PPO (its
     BC term included) nor the aux step (L_r) moves the human tower or the human's log std."""
-    from cogail_jax import losses
+    from cogail_jax.algo import losses
 
     ctx, state, exp_b, gen_b, expert = _context("bc_gail", tiny_cfg, fetchq, expert)
     cfg, nets, params = ctx.cfg, ctx.nets, state.params
@@ -196,7 +197,7 @@ def test_lz_moves_the_co_policy_in_the_ppo_step_without_la(method, tiny_cfg, fet
     step beside L_a. Regression: with L_z's co-policy part in the aux step, MA-InfoGAIL's human output weights
     got gradient from L_z alone there, so Adam moved them at the full aux learning rate whatever lambda_z was,
     and the human left its demonstrated behaviour: interpolation 0 % at every checkpoint on GPU."""
-    from cogail_jax import losses
+    from cogail_jax.algo import losses
 
     ctx, state, exp_b, gen_b, _ = _context(method, tiny_cfg, fetchq, expert)
     cfg, nets, params = ctx.cfg, ctx.nets, state.params
@@ -221,7 +222,7 @@ def test_expert_terms_act_on_codes_the_co_policy_knows(method, tiny_cfg, fetchq,
     own code from BC pre-training (in the prior's square, the codes the co-policy was cloned on), not on psi's
     code of the expert history; Co-GAIL keeps psi's code (its L_a teaches psi the demonstrations' codes).
     Regression: MA-InfoGAIL's robot was fitted to expert actions on psi codes it never sees at interpolation."""
-    from cogail_jax import losses
+    from cogail_jax.algo import losses
 
     ctx, state, exp_b, gen_b, expert = _context(method, tiny_cfg, fetchq, expert)
     cfg, nets, params = ctx.cfg, ctx.nets, state.params

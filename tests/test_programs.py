@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cogail_jax import programs
+from cogail_jax.runtime import programs
 
 
 @flax.struct.dataclass

@@ -1,12 +1,14 @@
-"""The reporting protocol (evaluate.summarize) on made-up curves with a known answer, the disjoint default
+"""The reporting protocol (protocol.summarize) on made-up curves with a known answer, the disjoint default
 splits, and one tiny evaluation with a validation set and an extra test set."""
 import json
 import time
 
 import numpy as np
 import pytest
+from cogail_envs import get_task
 
-from cogail_jax import evaluate
+from cogail_jax.eval import rollouts
+from cogail_jax.eval import protocol
 
 SEEDS = (1, 2, 3)
 STEPS = (10, 20, 30, 40)
@@ -49,7 +51,7 @@ def _stat(values):
 
 
 def test_paper_protocol_selected_last_and_per_seed_best():
-    res = evaluate.summarize("fetchq", "cogail", SEEDS, _per_ckpt(), ("s1", "s2", "s3", "s4"), None)
+    res = protocol.summarize("fetchq", "cogail", SEEDS, _per_ckpt(), ("s1", "s2", "s3", "s4"), None)
     rep, val, itp = (np.array(x) for x in (TEST_REPLAY, VAL_REPLAY, INTERP))
     pp = res["paper_protocol"]
     # the paper: the checkpoint maximising the seed MEAN, mean +- std over seeds there, per column
@@ -81,32 +83,32 @@ def test_paper_protocol_selected_last_and_per_seed_best():
     assert np.array_equal(res["curves"]["validation_replay_success"], val)
     assert np.array_equal(res["curves"]["interpolation_success"], itp)
     json.dumps(res)  # results.json is plain JSON
-    md = evaluate.results_markdown(res)
+    md = protocol.results_markdown(res)
     assert md.index("selected on validation") < md.index("paper protocol") < md.index("| last |")
     assert "**50.0 +- 0.0**" in md and "58.3 +- 11.8" in md and "inflated" in md
 
 
 def test_the_robot_to_show_is_the_selected_checkpoint_and_its_best_validation_seed():
-    res = evaluate.summarize("fetchq", "cogail", SEEDS, _per_ckpt(), ("a", "b", "c", "d"), None)
-    assert evaluate.selected_checkpoint(res) == (2, 40)  # validation at 40: 0.5, 0.75, 0.25
-    res = evaluate.summarize("fetchq", "cogail", SEEDS, _per_ckpt(validation=False), ("a", "b", "c", "d"), None)
-    assert evaluate.selected_checkpoint(res) == (2, 30)  # no validation: paper protocol, best test seed there
-    assert evaluate.selected_checkpoint({"best_checkpoint": {"5": {"replay": 7, "interpolation": 3}}}) == (5, 7)
-    assert evaluate.selected_checkpoint({}) == (None, None)
+    res = protocol.summarize("fetchq", "cogail", SEEDS, _per_ckpt(), ("a", "b", "c", "d"), None)
+    assert protocol.selected_checkpoint(res) == (2, 40)  # validation at 40: 0.5, 0.75, 0.25
+    res = protocol.summarize("fetchq", "cogail", SEEDS, _per_ckpt(validation=False), ("a", "b", "c", "d"), None)
+    assert protocol.selected_checkpoint(res) == (2, 30)  # no validation: paper protocol, best test seed there
+    assert protocol.selected_checkpoint({"best_checkpoint": {"5": {"replay": 7, "interpolation": 3}}}) == (5, 7)
+    assert protocol.selected_checkpoint({}) == (None, None)
 
 
 def test_ties_go_to_the_later_checkpoint_whatever_the_rounding():
     thirds = np.array([[0.1 + 0.2, 0.3], [1 / 3, 1 / 3]])  # equal means, up to float rounding
-    assert evaluate.argmax_seed_mean(thirds) == 1
-    assert evaluate.argmax_seed_mean(np.array([[0.2, 0.1, 0.2]])) == 2
-    assert evaluate.argmax_seed_mean(np.array([[0.9, 0.1, 0.2]])) == 0
+    assert protocol.argmax_seed_mean(thirds) == 1
+    assert protocol.argmax_seed_mean(np.array([[0.2, 0.1, 0.2]])) == 2
+    assert protocol.argmax_seed_mean(np.array([[0.9, 0.1, 0.2]])) == 0
 
 
 def test_without_validation_there_is_no_selected_checkpoint():
-    res = evaluate.summarize("fetchq", "cogail", SEEDS, _per_ckpt(validation=False), ("a", "b", "c", "d"), None)
+    res = protocol.summarize("fetchq", "cogail", SEEDS, _per_ckpt(validation=False), ("a", "b", "c", "d"), None)
     assert res["selected"] is None and "validation_replay_success" not in res["curves"]
     assert res["breakdowns_at"]["checkpoint"] == 40 and res["paper_protocol"]["replay"]["checkpoint"] == 30
-    assert "no selected checkpoint" in evaluate.results_markdown(res)
+    assert "no selected checkpoint" in protocol.results_markdown(res)
 
 
 def test_stack_sets_and_extra_set_summary():
@@ -114,15 +116,15 @@ def test_stack_sets_and_extra_set_summary():
          "prev_ah": np.ones((2, 5, 2)), "strategy": np.array([1, 2])}
     b = {"init": np.zeros((3, 3)), "ah": np.ones((3, 7, 2)), "length": np.array([7, 1, 2]),
          "obs": np.ones((3, 7, 6)), "prev_ah": np.ones((3, 7, 2)), "strategy": np.array([1, 1, 1])}
-    batch, part = evaluate.stack_sets({"test": a, "validation": b})
+    batch, part = rollouts.stack_sets({"test": a, "validation": b})
     assert part == {"test": slice(0, 2), "validation": slice(2, 5)} and "strategy" not in batch
     assert batch["ah"].shape == (5, 7, 2) and batch["ah"][:2, 5:].sum() == 0 and batch["obs"].shape == (5, 7, 6)
     np.testing.assert_array_equal(batch["length"], [5, 4, 7, 1, 2])
-    padded, _ = evaluate.stack_sets({"test": a, "validation": b}, steps=9)  # shapes fixed by the episode limit
+    padded, _ = rollouts.stack_sets({"test": a, "validation": b}, steps=9)  # shapes fixed by the episode limit
     assert padded["ah"].shape == (5, 9, 2) and padded["obs"].shape == (5, 9, 6)
     np.testing.assert_array_equal(padded["ah"][:, :7], batch["ah"])
     succ = {"selected": np.array([[1, 0, 1, 1], [0, 0, 1, 1]]), "paper_protocol": np.ones((2, 4))}
-    e = evaluate.summarize_extra_set(succ, np.array([1, 1, 2, 2]), (7, 8), ("x", "y"),
+    e = protocol.summarize_extra_set(succ, np.array([1, 1, 2, 2]), (7, 8), ("x", "y"),
                                      {"selected": 40, "paper_protocol": 30}, file="f.hdf5")
     assert e["episodes"] == 4 and e["selected"]["checkpoint"] == 40
     assert e["selected"]["mean"] == pytest.approx(0.625) and e["selected"]["per_seed"] == {"7": 0.75, "8": 0.5}
@@ -132,12 +134,12 @@ def test_stack_sets_and_extra_set_summary():
 def test_default_splits_are_disjoint(fetchq, tmp_path, monkeypatch):
     """train, validation and test default files come from distinct generator seeds: no episode of one is an
     episode of another (no shared start state, no shared human action sequence)."""
-    from cogail_jax import data
+    from cogail_jax.data import io as data
 
     monkeypatch.setenv("COGAIL_DATA", str(tmp_path))
-    monkeypatch.setitem(data.DEFAULT_NUM, "fetchq", 12)
-    monkeypatch.setitem(data.DEFAULT_VALIDATION, "fetchq", 12)
-    monkeypatch.setitem(data.DEFAULT_TEST, "fetchq", 12)
+    monkeypatch.setitem(get_task("fetchq").splits, "train", 12)
+    monkeypatch.setitem(get_task("fetchq").splits, "validation", 12)
+    monkeypatch.setitem(get_task("fetchq").splits, "test", 12)
     files = {sp: data.ensure_default_demos(fetchq, sp, verbose=False) for sp in data.SPLITS}
     assert data.ensure_default_demos(fetchq, "heldout", verbose=False) == files["test"]  # another name of test
     assert len({p.name for p in files.values()}) == 3
@@ -161,16 +163,18 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     was prepared while training ran (``EvalPrep``); the later ones, made from nothing, give the same figures."""
     import jax
 
-    from cogail_jax import data, demos, trainer
+    from cogail_jax.data import io as data
+    from cogail_jax.data import generate as demos
+    from cogail_jax.apps import eval_runner, runs, train_loop
 
     val = data.save_demos(tmp_path / "val.hdf5", fetchq, demos.generate(fetchq, 6, seed=2), seed=2)
     cfg = tiny_cfg.replace(seeds=(3, 5), validation=str(val))
     run = tmp_path / "run"
     kept = {}
-    prep = trainer.EvalPrep(run, robustness=False, extra_sets={"again": demo_files[1]})  # made while training runs
-    trainer.train_run(cfg, run, progress=False, keep=kept, on_compiled=prep.start)
+    prep = eval_runner.EvalPrep(run, robustness=False, extra_sets={"again": demo_files[1]})  # made while training runs
+    train_loop.train_run(cfg, run, progress=False, keep=kept, on_compiled=prep.start)
     assert sorted(kept) == [2, 4, 6]  # every checkpoint the training wrote (update 0 is not evaluated)
-    from cogail_jax.report import read_scalars  # TensorBoard: every metric of every update, one file per seed
+    from cogail_jax.apps.report import read_scalars  # TensorBoard: every metric of every update, one file per seed
 
     sc = read_scalars(run / "tb")
     assert set(sc) == {"3", "5"} and set(sc["3"]) == set(sc["5"]) and "train/episode_success" in sc["3"]
@@ -185,7 +189,7 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
         return x + 1
 
     with jax.log_compiles(True):  # its programs were compiled in the background: nothing compiles now
-        res = trainer.eval_run(run, progress=False, extra_sets={"again": demo_files[1]}, memory=kept,
+        res = eval_runner.eval_run(run, progress=False, extra_sets={"again": demo_files[1]}, memory=kept,
                                prepared=prep)
         jax.jit(seen)(np.float32(1))
     compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling jit(")]
@@ -197,7 +201,7 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
         def result(self):
             time.sleep(0.5)
 
-    trainer.eval_run(run, progress=False, extra_sets={"again": demo_files[1]}, memory=kept, prepared=Late())
+    eval_runner.eval_run(run, progress=False, extra_sets={"again": demo_files[1]}, memory=kept, prepared=Late())
     assert json.loads((run / "speed.json").read_text())["eval_parts"]["setup"] >= 0.5
     assert res["checkpoints"] == [2, 4, 6]
     assert res["splits"]["validation"] == {"file": str(val), "episodes": 6}
@@ -216,12 +220,12 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     own = json.loads((run / "replay-again" / "results.json").read_text())
     assert own["replay_success"]["per_seed"] == sel["replay"]["per_seed"]
     # adding a set later (`cogail eval --extra-set`, the run evaluated already) replays it at the same checkpoints
-    # only (trainer.eval_extra_sets); the earlier set is kept
-    from cogail_jax import cli
+    # only (eval_runner.eval_extra_sets); the earlier set is kept
+    from cogail_jax.apps import cli
 
-    assert trainer.results_current(run)
+    assert eval_runner.results_current(run)
     calls = []
-    monkeypatch.setattr(trainer, "eval_run", lambda *a, **k: calls.append(a))  # must not be needed
+    monkeypatch.setattr(eval_runner, "eval_run", lambda *a, **k: calls.append(a))  # must not be needed
     assert cli.main(["eval", "--run", str(run), "--extra-set", f"val-again={val}", "--no-progress"]) == 0
     assert not calls and "replay against" in capsys.readouterr().out
     res2 = json.loads((run / "results.json").read_text())
@@ -233,7 +237,7 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     # the same figures as one checkpoint at a time
     # with extra_curves the extra sets ride in that program's batch at every checkpoint: a curve per set, and the
     # reported figures those of the default evaluation (the extra sets' too)
-    again = trainer.eval_run(run, progress=False, ckpt_batch=2, extra_curves=True)
+    again = eval_runner.eval_run(run, progress=False, ckpt_batch=2, extra_curves=True)
     for key in ("replay_success", "validation_replay_success", "interpolation_success"):
         assert again["curves"][key] == res["curves"][key], key
     assert again["selected"] == sel and again["paper_protocol"] == pp
@@ -248,8 +252,8 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     assert again["extra_sets"]["val-again"]["selected"]["per_seed"] == sel["validation_replay"]["per_seed"]
     # the checkpoints kept in memory by the training loop, all in one program: no checkpoint read from disk, and
     # the same results as reading each one back
-    monkeypatch.setattr(trainer.ckpt, "restore", lambda *a, **k: pytest.fail("a checkpoint was read from disk"))
-    mem = trainer.eval_run(run, progress=False, ckpt_batch=3, memory=kept)
+    monkeypatch.setattr(runs.ckpt, "restore", lambda *a, **k: pytest.fail("a checkpoint was read from disk"))
+    mem = eval_runner.eval_run(run, progress=False, ckpt_batch=3, memory=kept)
     monkeypatch.undo()
     for key in ("replay_success", "validation_replay_success", "interpolation_success"):
         assert mem["curves"][key] == res["curves"][key], key
@@ -258,7 +262,8 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     assert mem["extra_sets"]["again"]["selected"] == again["extra_sets"]["again"]["selected"]
     # a device that runs out of memory with 3 checkpoints per program: the evaluation goes on with fewer, the
     # same results, and a warning says which --ckpt-batch fits
-    from cogail_jax import evaluate as ev
+    from cogail_jax.eval import rollouts as ev
+    from cogail_jax.eval import protocol
 
     real = ev.make_eval_fn
 
@@ -273,7 +278,7 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
 
     monkeypatch.setattr(ev, "make_eval_fn", small_device)
     capsys.readouterr()
-    oom = trainer.eval_run(run, progress=False, ckpt_batch=3, memory=kept)
+    oom = eval_runner.eval_run(run, progress=False, ckpt_batch=3, memory=kept)
     monkeypatch.undo()
     assert "give --ckpt-batch 1 next time" in capsys.readouterr().out
     assert oom["curves"] == mem["curves"] and oom["selected"] == sel
@@ -282,13 +287,13 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
 def test_checkpoints_per_evaluation_program_default_by_backend(monkeypatch):
     """None (the CLI's default): 1 checkpoint per program on the CPU; on an accelerator every checkpoint of the
     run in one program (up to a cap)."""
-    from cogail_jax import trainer
+    from cogail_jax.apps import eval_runner, runs, train_loop
 
-    monkeypatch.setattr(trainer.jax, "default_backend", lambda: "cpu")
-    assert trainer.default_ckpt_batch(34) == 1
-    monkeypatch.setattr(trainer.jax, "default_backend", lambda: "gpu")
-    assert trainer.default_ckpt_batch(34) == 34
-    assert trainer.default_ckpt_batch(1000) == trainer.MAX_CKPT_BATCH
+    monkeypatch.setattr(runs.jax, "default_backend", lambda: "cpu")
+    assert eval_runner.default_ckpt_batch(34) == 1
+    monkeypatch.setattr(runs.jax, "default_backend", lambda: "gpu")
+    assert eval_runner.default_ckpt_batch(34) == 34
+    assert eval_runner.default_ckpt_batch(1000) == eval_runner.MAX_CKPT_BATCH
 
 
 def test_eval_program_matches_a_step_by_step_reference(tiny_cfg, demo_files, fetchq):
@@ -298,25 +303,26 @@ def test_eval_program_matches_a_step_by_step_reference(tiny_cfg, demo_files, fet
     import jax
     import jax.numpy as jnp
 
-    from cogail_jax import data, train
+    from cogail_jax.data import io as data
+    from cogail_jax.algo import train
 
     cfg = tiny_cfg.replace(bc_steps=3000, eval_codes=4)
     expert = train.expert_arrays(data.load_demos(cfg.demos, fetchq), cfg.history)
     init, _, nets = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
     state = init(cfg.seeds, expert)
-    held = evaluate.heldout_arrays(data.load_demos(demo_files[1], fetchq, require_init=True))
+    held = rollouts.heldout_arrays(data.load_demos(demo_files[1], fetchq, require_init=True))
     held = {k: v for k, v in held.items() if k != "strategy"}
     E = held["length"].shape[0]
     one = lambda t: jax.tree.map(lambda x: x[None], t)  # noqa: E731  (one checkpoint)
-    out = jax.device_get(evaluate.make_eval_fn(cfg, fetchq, nets)(one(state.params), one(state.norm), held))
+    out = jax.device_get(rollouts.make_eval_fn(cfg, fetchq, nets)(one(state.params), one(state.norm), held))
     assert out["replay_success"].shape == (1, 2, E) and out["interp_success"].shape == (1, 2, 4)
 
-    _, robot_step = evaluate.make_robot_step(cfg, fetchq, nets)
+    _, robot_step = rollouts.make_robot_step(cfg, fetchq, nets)
     robot_step, env_step = jax.jit(robot_step), jax.jit(fetchq.step)
     actor = jax.jit(nets["actor"].apply)
-    codes = evaluate.interpolation_codes(cfg.eval_codes)
+    codes = rollouts.interpolation_codes(cfg.eval_codes)
     keys = {name: jax.random.split(jax.random.PRNGKey(seed), cfg.eval_codes)
-            for name, seed in (("interp", evaluate.EVAL_SEED), ("val_interp", evaluate.VALIDATION_EVAL_SEED))}
+            for name, seed in (("interp", rollouts.EVAL_SEED), ("val_interp", rollouts.VALIDATION_EVAL_SEED))}
     Ah, ref = fetchq.human_action_size, {"replay": [], "interp": [], "val_interp": []}
     for i in range(len(cfg.seeds)):
         params, norm = jax.tree.map(lambda x: x[i], (state.params, state.norm))
@@ -353,8 +359,8 @@ def test_validation_interpolation_is_reported_beside_the_test_figures_and_choose
     curve and strategy shares; the selected checkpoint stays the validation replay's, and the test figures are the
     same as without them."""
     v_itp = np.array(INTERP)[::-1]  # the seeds' rows swapped: best at 30 on its own, but nothing is chosen on it
-    res = evaluate.summarize("fetchq", "cogail", SEEDS, _per_ckpt(val_interp=v_itp), ("s1", "s2", "s3", "s4"), None)
-    plain = evaluate.summarize("fetchq", "cogail", SEEDS, _per_ckpt(), ("s1", "s2", "s3", "s4"), None)
+    res = protocol.summarize("fetchq", "cogail", SEEDS, _per_ckpt(val_interp=v_itp), ("s1", "s2", "s3", "s4"), None)
+    plain = protocol.summarize("fetchq", "cogail", SEEDS, _per_ckpt(), ("s1", "s2", "s3", "s4"), None)
     sel = res["selected"]
     assert sel["checkpoint"] == 40 and sel["validation_interpolation"] == _stat(v_itp[:, 3])
     assert res["last"]["validation_interpolation"] == _stat(v_itp[:, 3])
@@ -364,26 +370,26 @@ def test_validation_interpolation_is_reported_beside_the_test_figures_and_choose
     for key in ("paper_protocol", "per_seed_best", "strategy_distribution"):
         assert res[key] == plain[key]
     assert "validation_interpolation" not in plain["selected"] and "validation_strategy_distribution" not in plain
-    md = evaluate.results_markdown(res)
-    assert f"(validation replay {evaluate._f(sel['validation_replay'])}, interpolation " in md
+    md = protocol.results_markdown(res)
+    assert f"(validation replay {protocol._f(sel['validation_replay'])}, interpolation " in md
     assert "| s3 | 0.0 | 44.4 | 100.0 |" in md  # test share, paper-protocol share, validation share
 
 
 def test_robustness_sets_of_a_run_trained_on_varied_humans_are_flagged():
     """A run whose training set held varied humans (train_varied) says so next to its varied-human figures."""
-    res = evaluate.summarize("fetchq", "cogail", SEEDS, _per_ckpt(), ("a", "b", "c", "d"), None)
+    res = protocol.summarize("fetchq", "cogail", SEEDS, _per_ckpt(), ("a", "b", "c", "d"), None)
     e = {"episodes": 4, "selected": {"checkpoint": 40, "mean": 0.5, "std": 0.0, "per_seed": {}},
          "paper_protocol": None}
-    assert "recording" not in evaluate.results_markdown(res)
+    assert "recording" not in protocol.results_markdown(res)
     res["extra_sets"] = {"robust-detour": e}
-    assert "trained on" not in evaluate.results_markdown(res)
-    assert "20 % of it after the end of the human's recording" in evaluate.results_markdown(res)  # the margin said
+    assert "trained on" not in protocol.results_markdown(res)
+    assert "20 % of it after the end of the human's recording" in protocol.results_markdown(res)  # the margin said
     res["train_varied"] = 10
-    assert "10 varied-human episodes of each variation" in evaluate.results_markdown(res)
-    assert "patient human" not in evaluate.results_markdown(res)
+    assert "10 varied-human episodes of each variation" in protocol.results_markdown(res)
+    assert "patient human" not in protocol.results_markdown(res)
     res["extra_sets"]["patient-robust-detour"] = e  # the patient replay of a set is said what it is
-    assert "| patient-robust-detour |" in evaluate.results_markdown(res)
-    assert "patient human" in evaluate.results_markdown(res)
+    assert "| patient-robust-detour |" in protocol.results_markdown(res)
+    assert "patient human" in protocol.results_markdown(res)
 
 
 def test_a_patient_human_waits_then_goes_on_with_its_recording(tiny_cfg, demo_files, fetchq):
@@ -393,7 +399,8 @@ def test_a_patient_human_waits_then_goes_on_with_its_recording(tiny_cfg, demo_fi
     import jax
     import jax.numpy as jnp
 
-    from cogail_jax import data, train
+    from cogail_jax.data import io as data
+    from cogail_jax.algo import train
 
     W = 7
 
@@ -416,14 +423,14 @@ def test_a_patient_human_waits_then_goes_on_with_its_recording(tiny_cfg, demo_fi
     expert = train.expert_arrays(data.load_demos(cfg.demos, env), cfg.history)
     init, _, nets = train.make_train_fns(cfg, env, train.fit_normalizer(expert))
     state = init(cfg.seeds, expert)
-    held = evaluate.heldout_arrays(data.load_demos(demo_files[1], env, require_init=True))
+    held = rollouts.heldout_arrays(data.load_demos(demo_files[1], env, require_init=True))
     shifted = dict(held, ah=np.concatenate([np.full((len(held["ah"]), W, held["ah"].shape[2]), 0.5, np.float32),
                                             held["ah"]], 1), length=held["length"] + W)
-    batch, part = evaluate.stack_sets({"plain": held, "patient": dict(held, patient=np.ones_like(held["patient"])),
+    batch, part = rollouts.stack_sets({"plain": held, "patient": dict(held, patient=np.ones_like(held["patient"])),
                                        "shifted": shifted}, steps=env.max_episode_steps + W)
-    replay = evaluate.make_replay_fn(cfg, env, nets)
+    replay = rollouts.make_replay_fn(cfg, env, nets)
     m = jax.device_get(replay(state.params, state.norm, {k: batch[k] for k in ("init", "ah", "length", "patient")}))
-    plain = jax.device_get(evaluate.make_replay_fn(cfg, fetchq, nets)(
+    plain = jax.device_get(rollouts.make_replay_fn(cfg, fetchq, nets)(
         state.params, state.norm, {k: batch[k][part["plain"]] for k in ("init", "ah", "length")}))
     for k, v in m.items():
         np.testing.assert_array_equal(v[:, part["patient"]], v[:, part["shifted"]], err_msg=k)
@@ -439,7 +446,8 @@ def test_a_replay_runs_the_margin_past_a_late_recording(tiny_cfg, demo_files, fe
     import jax
     import jax.numpy as jnp
 
-    from cogail_jax import data, train
+    from cogail_jax.data import io as data
+    from cogail_jax.algo import train
 
     T = 40
 
@@ -454,28 +462,28 @@ def test_a_replay_runs_the_margin_past_a_late_recording(tiny_cfg, demo_files, fe
             return self._where(super().step(state, action))
 
     env = Clocked(T)
-    margin = evaluate.replay_margin(env)
-    assert margin == round(evaluate.REPLAY_MARGIN * T) > 0
+    margin = rollouts.replay_margin(env)
+    assert margin == round(rollouts.REPLAY_MARGIN * T) > 0
     cfg = tiny_cfg.replace(bc_steps=300, seeds=(3,), eval_codes=4)
     expert = train.expert_arrays(data.load_demos(cfg.demos, fetchq), cfg.history)
     init, _, nets = train.make_train_fns(cfg, env, train.fit_normalizer(expert))
     state = init(cfg.seeds, expert)
-    held = evaluate.heldout_arrays(data.load_demos(demo_files[1], fetchq, require_init=True))
+    held = rollouts.heldout_arrays(data.load_demos(demo_files[1], fetchq, require_init=True))
     lengths = np.array([3, T - margin, T - 2, T + 5])[: len(held["length"])]
     held = dict(held, length=lengths, ah=held["ah"][:, :T + 5], margin=np.ones(len(lengths), bool))
     split = dict(held, margin=np.zeros(len(lengths), bool))
-    assert evaluate.replay_steps(env, lengths, split["margin"]) == T
-    batch, part = evaluate.stack_sets({"test": split, "extra": held}, steps=evaluate.replay_steps(env, lengths))
-    assert batch["ah"].shape[1] == T + 5 + margin == evaluate.replay_steps(env, lengths)
+    assert rollouts.replay_steps(env, lengths, split["margin"]) == T
+    batch, part = rollouts.stack_sets({"test": split, "extra": held}, steps=rollouts.replay_steps(env, lengths))
+    assert batch["ah"].shape[1] == T + 5 + margin == rollouts.replay_steps(env, lengths)
     keys = ("init", "ah", "length", "patient", "margin")
-    m = jax.device_get(evaluate.make_replay_fn(cfg, env, nets)(state.params, state.norm, {k: held[k] for k in keys}))
+    m = jax.device_get(rollouts.make_replay_fn(cfg, env, nets)(state.params, state.norm, {k: held[k] for k in keys}))
     horizon = np.maximum(T, lengths + margin)
     ended = m["t"][0]
     won = m["success"][0] > 0
     assert np.all(ended[~won] == horizon[~won]) and np.all(ended[won] <= horizon[won]), (ended, horizon)
     assert not won[2:].all()  # an untrained robot: the late recordings run to their pushed-back limit
     one = lambda t: jax.tree.map(lambda x: x[None], t)  # noqa: E731
-    out = jax.device_get(evaluate.make_eval_fn(cfg, env, nets)(one(state.params), one(state.norm),
+    out = jax.device_get(rollouts.make_eval_fn(cfg, env, nets)(one(state.params), one(state.norm),
                                                                {k: batch[k] for k in batch}))
     np.testing.assert_array_equal(out["replay_metrics"]["t"][0, 0, part["extra"]], ended)  # the same in a batch
     plain_t, plain_won = out["replay_metrics"]["t"][0, 0, part["test"]], out["replay_success"][0, 0, part["test"]] > 0

@@ -15,14 +15,16 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cogail_jax import checkpoint as ckpt
-from cogail_jax import data, train, trainer
+from cogail_jax.runtime import checkpoint as ckpt
+from cogail_jax.data import io as data
+from cogail_jax.algo import train
+from cogail_jax.apps import runs, train_loop
 
 
 
 
 def _params(run_dir, cfg):
-    s = trainer.build(cfg, need_heldout=False)
+    s = runs.build(cfg, need_heldout=False)
     mgr = ckpt.manager(run_dir)
     abstract = jax.eval_shape(lambda: s.init(cfg.seeds, s.expert))
     out = {}
@@ -39,12 +41,12 @@ def kill_cfg(tiny_cfg):
 @pytest.fixture(scope="module")
 def reference(kill_cfg, tmp_path_factory):
     run = tmp_path_factory.mktemp("ref") / "run"
-    trainer.train_run(kill_cfg, run, progress=False)
+    train_loop.train_run(kill_cfg, run, progress=False)
     return _params(run, kill_cfg)
 
 
 def _start(cfg_file, run, resume, stdout=subprocess.DEVNULL):
-    args = [sys.executable, "-m", "cogail_jax.cli", "train", "--config", str(cfg_file), "--run", str(run), "--no-progress"]
+    args = [sys.executable, "-m", "cogail_jax.apps.cli", "train", "--config", str(cfg_file), "--run", str(run), "--no-progress"]
     return subprocess.Popen(args + (["--resume"] if resume else []), stdout=stdout, stderr=subprocess.PIPE,
                             start_new_session=True)
 
@@ -95,12 +97,12 @@ def test_kill_9_then_resume_matches_uninterrupted(kill_cfg, reference, tmp_path)
 
 def test_corrupt_latest_checkpoint_is_skipped(kill_cfg, reference, tmp_path, capsys):
     run = tmp_path / "run"
-    trainer.train_run(kill_cfg, run, progress=False, stop_after=6)
+    train_loop.train_run(kill_cfg, run, progress=False, stop_after=6)
     latest = Path(run) / "checkpoints" / "6"
     for f in latest.rglob("*"):
         if f.is_file() and f.stat().st_size > 0:
             f.write_bytes(b"\0garbage" * 3)
-    trainer.train_run(kill_cfg, run, resume=True, progress=False)
+    train_loop.train_run(kill_cfg, run, resume=True, progress=False)
     out = capsys.readouterr().out
     assert "checkpoint 6" in out and "unreadable" in out and "resuming" in out
     assert any((Path(run) / "corrupt_checkpoints").iterdir())  # moved aside, not deleted
@@ -119,8 +121,8 @@ def test_nonfinite_stops_and_keeps_last_good_checkpoint(kill_cfg, tmp_path, monk
 
     monkeypatch.setattr(train, "fit_normalizer", broken)
     run = tmp_path / "run"
-    with pytest.raises(trainer.RunError, match=r"diverged at update \d+"):
-        trainer.train_run(kill_cfg, run, progress=False)
+    with pytest.raises(runs.RunError, match=r"diverged at update \d+"):
+        train_loop.train_run(kill_cfg, run, progress=False)
     assert ckpt.steps(ckpt.manager(run)) == [0]
 
 
@@ -138,7 +140,7 @@ def test_same_seed_same_metrics(tiny_cfg, fetchq):
 
 
 def test_config_errors(tiny_cfg):
-    from cogail_jax.config import ConfigError
+    from cogail_jax.algo.config import ConfigError
 
     for bad in (dict(task="nope"), dict(method="nope"), dict(total_steps=0), dict(num_envs=-1),
                 dict(checkpoint_every=0), dict(seeds=())):
@@ -149,10 +151,10 @@ def test_config_errors(tiny_cfg):
 def test_max_episode_steps_sets_the_time_limit_of_training_and_evaluation(tiny_cfg):
     """``max_episode_steps`` builds the task with that time limit (training and evaluation use ``Setup.env``);
     0 keeps the task's own; a negative value is a config error."""
-    from cogail_jax.config import ConfigError
+    from cogail_jax.algo.config import ConfigError
 
-    assert trainer.build(tiny_cfg, need_heldout=False).env.max_episode_steps == 300  # fetchq's own
-    s = trainer.build(tiny_cfg.replace(max_episode_steps=40), need_heldout=False)
+    assert runs.build(tiny_cfg, need_heldout=False).env.max_episode_steps == 300  # fetchq's own
+    s = runs.build(tiny_cfg.replace(max_episode_steps=40), need_heldout=False)
     assert s.env.max_episode_steps == 40
     state = s.env.reset(jax.random.PRNGKey(0))
     for _ in range(40):
@@ -168,8 +170,8 @@ def test_resume_into_run_of_another_task(tiny_cfg, tmp_path):
     run = tmp_path / "run"
     run.mkdir()
     (run / "config.json").write_text(json.dumps({**json.loads(tiny_cfg.to_json()), "task": "handover"}))
-    with pytest.raises(trainer.RunError, match="handover"):
-        trainer.train_run(tiny_cfg, run, resume=True, progress=False)
+    with pytest.raises(runs.RunError, match="handover"):
+        train_loop.train_run(tiny_cfg, run, resume=True, progress=False)
 
 
 # ---------------------------------------------------------------- property-based: demonstration files

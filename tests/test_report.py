@@ -6,12 +6,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cogail_jax import cli
-from cogail_jax.config import TrainConfig
+from cogail_jax.apps import cli
+from cogail_jax.algo.config import TrainConfig
 
 def _results(seeds) -> dict:
     """An evaluation of 3 checkpoints (made-up success rates) through the reporting protocol."""
-    from cogail_jax import evaluate
+    from cogail_jax.eval import rollouts
+    from cogail_jax.eval import protocol
 
     rng = np.random.default_rng(0)
     per_ckpt = {}
@@ -20,7 +21,7 @@ def _results(seeds) -> dict:
                           "val_replay_success": (rng.random((len(seeds), 30)) < 0.2 * c + 0.2).astype(float),
                           "interp_success": (rng.random((len(seeds), 16)) < 0.5).astype(float),
                           "interp_strategy": rng.integers(1, 5, (len(seeds), 16))}
-    return evaluate.summarize("fetchq", "cogail", seeds, per_ckpt, ("s1", "s2", "s3", "s4"), None)
+    return protocol.summarize("fetchq", "cogail", seeds, per_ckpt, ("s1", "s2", "s3", "s4"), None)
 
 
 def _png(path: Path, color) -> bytes:
@@ -51,15 +52,16 @@ def _fake_run(root: Path, evaluated: bool = True, seeds=(1, 2)) -> Path:
             w.add_scalar("train/reward", -u, step)
         w.close()
     if evaluated:
-        from cogail_jax import evaluate
+        from cogail_jax.eval import rollouts
+        from cogail_jax.eval import protocol
 
-        evaluate.save_results(run, _results(seeds))
+        protocol.save_results(run, _results(seeds))
         _png(run / "strategy_distribution.png", (200, 30, 30))
     return run
 
 
 def test_read_scalars_matches_what_was_written(tmp_path):
-    from cogail_jax.report import read_scalars
+    from cogail_jax.apps.report import read_scalars
 
     run = _fake_run(tmp_path)
     sc = read_scalars(run / "tb")
@@ -104,7 +106,7 @@ def test_report_of_a_run_not_evaluated_yet(tmp_path, capsys):
 
 
 def test_report_of_a_run_that_logged_nothing(tmp_path):
-    from cogail_jax.report import build_report
+    from cogail_jax.apps.report import build_report
 
     run = tmp_path / "empty"
     run.mkdir()
@@ -129,7 +131,8 @@ def test_help(cmd, capsys):
 def test_summary_breaks_replay_and_interpolation_down_by_events():
     """results.json: replay success per held-out strategy and how far rollouts got (each event's share), at
     the breakdown checkpoint; categorical events (1 human / 2 robot) are split by value, continuous ones left out."""
-    from cogail_jax import evaluate
+    from cogail_jax.eval import rollouts
+    from cogail_jax.eval import protocol
 
     hs = np.array([1, 1, 2, 2])
     ck = {
@@ -142,12 +145,12 @@ def test_summary_breaks_replay_and_interpolation_down_by_events():
              "interp_metrics": {"opened_by": np.array([[2, 2, 0]], float), "spot": np.array([[0.3, 0.1, 0.2]])},
              "replay_metrics": {"success": np.array([[1, 0, 1, 1]], float), "opened_by": np.array([[1, 0, 2, 2]], float)}},
     }
-    res = evaluate.summarize("t", "cogail", (7,), ck, ("a", "b"), None, heldout_strategy=hs)
+    res = protocol.summarize("t", "cogail", (7,), ck, ("a", "b"), None, heldout_strategy=hs)
     assert res["per_seed_best"]["replay"]["checkpoint"] == {"7": 20}
     assert res["breakdowns_at"]["checkpoint"] == 20  # no validation results here: at the last checkpoint
     assert res["replay_by_strategy"] == {"a": 0.5, "b": 1.0}
     assert res["replay_events_by_strategy"]["a"] == {"opened_by=1": 0.5, "opened_by=2": 0.0, "success": 0.5}
     assert res["replay_events_by_strategy"]["b"] == {"opened_by=1": 0.0, "opened_by=2": 1.0, "success": 1.0}
     assert res["interpolation_events"] == pytest.approx({"opened_by=1": 0.0, "opened_by=2": 2 / 3})
-    md = evaluate.results_markdown(res)
+    md = protocol.results_markdown(res)
     assert "a 50.0 %" in md and "Events in replays of b demonstrations" in md

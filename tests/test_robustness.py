@@ -12,8 +12,9 @@ import h5py
 import numpy as np
 import pytest
 
-from cogail_jax import robustness as rb
-from cogail_jax.data import load_demos
+from cogail_jax.data import varied as rb
+from cogail_jax.eval import robustness as rfig
+from cogail_jax.data.io import load_demos
 
 NUM, BATCH = 16, 24  # fetchq episodes per variation; one batch size, so one compilation per program
 
@@ -127,7 +128,7 @@ def test_noise_is_larger(fetchq, fq_sets, fq_twins):
 
 
 def test_change_of_mind_heads_elsewhere_first(fetchq, fq_sets, fq_twins):
-    from cogail_envs.teams.fetchq import first_target
+    from cogail_envs.fetchq.team import first_target
 
     d = load_demos(fq_sets["robust-change_of_mind"], fetchq)
     tw = fq_twins["change_of_mind"]
@@ -161,16 +162,16 @@ def test_figure(tmp_path):
                        "robust-noise": {"selected": {"mean": 0.5, "std": 0.0, "by_strategy": {"a": 0.5}}},
                        "other": {"selected": {"mean": 0.1, "std": 0.0}}},
     }
-    rows = rb.parse_results(results)
+    rows = rfig.parse_results(results)
     assert list(rows) == ["in-distribution", "slow", "noise"] and rows["slow"]["by_strategy"]["b"] == 0.4
-    out = rb.robustness_figure(results, tmp_path / "robust.png", blind={"slow": {"varied": 0.1, "in_distribution": 0.8}})
+    out = rfig.robustness_figure(results, tmp_path / "robust.png", blind={"slow": {"varied": 0.1, "in_distribution": 0.8}})
     assert out.exists() and out.stat().st_size > 1000
-    flat = rb.robustness_figure({"in_distribution": 0.6, "pauses": 0.2}, tmp_path / "flat.png")
+    flat = rfig.robustness_figure({"in_distribution": 0.6, "pauses": 0.2}, tmp_path / "flat.png")
     assert flat.exists()
-    assert rb.robustness_curve_figure(results, tmp_path / "none.png") is None  # no per-checkpoint curves
+    assert rfig.robustness_curve_figure(results, tmp_path / "none.png") is None  # no per-checkpoint curves
     curves = {**results, "checkpoints": [10, 20], "curves": {"replay_success": [[0.5, 0.7], [0.6, 0.8]]},
               "extra_sets": {"robust-slow": {"curve": [[0.1, 0.3], [0.2, 0.4]]}, "other": {"curve": [[0, 0]]}}}
-    out = rb.robustness_curve_figure(curves, tmp_path / "curves.png")
+    out = rfig.robustness_curve_figure(curves, tmp_path / "curves.png")
     assert out.exists() and out.stat().st_size > 1000
 
 
@@ -193,7 +194,7 @@ def test_mjx_sets_validate(task, tmp_path):
 def test_varied_training_set_adds_validated_varied_humans_to_the_team(fetchq, fq_sets, tmp_path):
     """``train_varied``: the default training set, then per_variation validated varied-human episodes of each
     variation, from generator seeds of their own (none is one of the test split's varied humans); cached."""
-    from cogail_jax.config import ConfigError, TrainConfig
+    from cogail_jax.algo.config import ConfigError, TrainConfig
 
     k = 2
     with _data_dir(tmp_path):

@@ -7,7 +7,11 @@ import numpy as np
 import pytest
 
 from cogail_envs import mjx_common as mc
-from cogail_envs.seqmanip import CUE_Y, H_CARRY_WAIT, H_WAIT_OPEN, R_WAIT, TRAVEL, SeqManip
+from cogail_envs import get_task
+from cogail_envs.seqmanip.env import CUE_Y, TRAVEL, SeqManip
+from cogail_envs.seqmanip.team import H_CARRY_WAIT, H_WAIT_OPEN, R_WAIT
+
+TEAM = get_task("seqmanip").team
 
 REPEATS = 3  # scripted episodes per strategy
 RELEASE_AT = 300  # step at which the "drop" episode opens the human's gripper
@@ -38,11 +42,11 @@ def rollout(env):
         k0, k1, k2 = jax.random.split(rng, 3)
         init = env.sample_init(k0)
         state = env.reset_from(init)
-        ts, sid = env.team_init(k1, mix)
+        ts, sid = TEAM.init(env, k1, mix)
 
         def body(carry, key):
             state, ts, finished, metrics = carry
-            ts, a = env.team_act(ts, state, key)
+            ts, a = TEAM.act(env, ts, state, key)
             a = a.at[:7].multiply(human_on).at[7:].multiply(robot_on)  # idle agent: all-zero action
             a = a.at[6].set(jnp.where(state.info["t"] >= release_at, 1.0, a[6]))  # forced human release
             nxt = env.step(state, a)

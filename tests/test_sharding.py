@@ -15,13 +15,13 @@ def test_two_devices_match_one(tiny_cfg, tmp_path):
         import os
         os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2 {FAST_COMPILE}"
         import jax, numpy as np
-        from cogail_jax import trainer
-        from cogail_jax.config import TrainConfig
+        from cogail_jax.apps import runs, train_loop
+        from cogail_jax.algo.config import TrainConfig
         assert len(jax.devices()) == 2
         cfg = TrainConfig.from_dict({tiny_cfg.to_json()!r} and __import__("json").loads({tiny_cfg.to_json()!r}))
-        s = trainer.build(cfg, need_heldout=False)
+        s = runs.build(cfg, need_heldout=False)
         one = s.init(cfg.seeds, s.expert)
-        two, ex2 = trainer.place_on_devices(s.init(cfg.seeds, s.expert), s.expert, "all", len(cfg.seeds))
+        two, ex2 = train_loop.place_on_devices(s.init(cfg.seeds, s.expert), s.expert, "all", len(cfg.seeds))
         assert len(two.params["actor"]["params"]["log_std"].sharding.device_set) == 2
         one, _ = s.chunk(one, s.expert)
         two, _ = s.chunk(two, ex2)
@@ -29,8 +29,8 @@ def test_two_devices_match_one(tiny_cfg, tmp_path):
         for a, b in zip(jax.tree.leaves(jax.device_get(one.params)), jax.tree.leaves(jax.device_get(two.params))):
             np.testing.assert_allclose(a, b, rtol=2e-5, atol=2e-6)
         # the per-device mode (each device runs the one-device program) gives the same result, placed as its input
-        pd = trainer.build(cfg.replace(multi_device="per_device"), need_heldout=False)
-        three, ex3 = trainer.place_on_devices(pd.init(cfg.seeds, pd.expert), pd.expert, "all", len(cfg.seeds))
+        pd = runs.build(cfg.replace(multi_device="per_device"), need_heldout=False)
+        three, ex3 = train_loop.place_on_devices(pd.init(cfg.seeds, pd.expert), pd.expert, "all", len(cfg.seeds))
         sig = lambda t: [(x.sharding, x.shape, x.dtype, x.weak_type) for x in jax.tree.leaves(t)]
         sig0 = sig(three)
         three, m3 = pd.chunk(three, ex3)
@@ -58,8 +58,10 @@ def test_sharded_mjx_chunk_has_no_cross_device_collectives(tmp_path):
         import jax
         import numpy as np
         import cogail_envs
-        from cogail_jax import data, demos, trainer
-        from cogail_jax.config import TrainConfig
+        from cogail_jax.data import io as data
+        from cogail_jax.data import generate as demos
+        from cogail_jax.apps import runs, train_loop
+        from cogail_jax.algo.config import TrainConfig
         env = cogail_envs.make_env("handover")
         # two short made-up demonstrations: only their shapes enter the programs under test (the scripted
         # handover rollout that would make real ones compiles for ~30 s on CPU)
@@ -74,8 +76,8 @@ def test_sharded_mjx_chunk_has_no_cross_device_collectives(tmp_path):
         cfg = TrainConfig(task="handover", num_envs=2, unroll_length=2, seeds=(1, 2), updates_per_call=1,
                           total_steps=8, bc_steps=0, inner_updates=1, ppo_epochs=1, num_minibatches=1,
                           demos=str(path)).validate()
-        s = trainer.build(cfg, need_heldout=False)
-        st, ex = trainer.place_on_devices(s.init(cfg.seeds, s.expert), s.expert, "all", 2)
+        s = runs.build(cfg, need_heldout=False)
+        st, ex = train_loop.place_on_devices(s.init(cfg.seeds, s.expert), s.expert, "all", 2)
         compiled = s.chunk.lower(st, ex).compile()
         txt = compiled.as_text()
         st2, _ = compiled(st, ex)
@@ -85,7 +87,7 @@ def test_sharded_mjx_chunk_has_no_cross_device_collectives(tmp_path):
         # crashes on the 2-device shard_map program); MJX's empty state fields come back as they went in
         assert cfg.multi_device_mode == "per_device"
         sig1 = lambda t: [(x.sharding, x.shape, x.dtype, x.weak_type) for x in jax.tree.leaves(t)]
-        st3, ex3 = trainer.place_on_devices(s.init(cfg.seeds, s.expert), s.expert, "all", 2)
+        st3, ex3 = train_loop.place_on_devices(s.init(cfg.seeds, s.expert), s.expert, "all", 2)
         before = sig1(st3)
         st3, _ = s.chunk(st3, ex3)
         assert sig1(st3) == before

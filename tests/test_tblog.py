@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from cogail_jax import tblog
+from cogail_jax.runtime import tblog
 
 
 def _write(log_dir, suffix, rows):
@@ -62,9 +62,10 @@ def test_episode_windows_span_at_least_one_time_limit():
 
 
 def test_results_md_gives_the_first_and_last_interval():
-    from cogail_jax import evaluate
+    from cogail_jax.eval import rollouts
+    from cogail_jax.eval import protocol
 
-    (line,) = [x for x in evaluate._training_success_line({"checkpoints": [2, 4, 6], "mean": [None, 0.125, 0.5]}) if x]
+    (line,) = [x for x in protocol._training_success_line({"checkpoints": [2, 4, 6], "mean": [None, 0.125, 0.5]}) if x]
     assert "12.5 % over updates 3-4" in line and "50.0 % over updates 5-6" in line
-    assert evaluate._training_success_line({"checkpoints": [2], "mean": [None]}) == []
-    assert evaluate._training_success_line(None) == []
+    assert protocol._training_success_line({"checkpoints": [2], "mean": [None]}) == []
+    assert protocol._training_success_line(None) == []

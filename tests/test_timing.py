@@ -1,10 +1,12 @@
-"""RUN/speed.json (cogail_jax.timing), `cogail bench --phases` and the persistent compilation cache (no training
+"""RUN/speed.json (cogail_jax.runtime.timing), `cogail bench --phases` and the persistent compilation cache (no training
 here: tests/test_train.py checks the speed.json of a real run)."""
 import json
 
 import pytest
 
-from cogail_jax import cli, timing, xla
+from cogail_jax.apps import cli
+from cogail_jax.runtime import timing
+from cogail_jax.runtime import xla
 
 
 def _clock(**seconds):

@@ -6,9 +6,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cogail_jax import checkpoint as ckpt
-from cogail_jax import data, tblog, timing, train, trainer
-from cogail_jax.config import ConfigError
+from cogail_jax.runtime import checkpoint as ckpt
+from cogail_jax.data import io as data
+from cogail_jax.runtime import tblog
+from cogail_jax.runtime import timing
+from cogail_jax.algo import train
+from cogail_jax.apps import eval_runner, runs, train_loop
+from cogail_jax.algo.config import ConfigError
 
 
 @pytest.fixture(scope="module")
@@ -139,7 +143,7 @@ def test_seed_vmap_equals_single_seed_run(setup, tiny_cfg, fetchq):
 def test_scan_unroll_gives_the_same_update(setup, tiny_cfg, fetchq):
     """scan_unroll (the rollout's, GAE's and the return normaliser's scans unrolled) changes the program, not the
     update: 3 does not divide the unroll (16), so the scans' remainder steps are covered too."""
-    from cogail_jax.config import ConfigError
+    from cogail_jax.algo.config import ConfigError
 
     init, chunk, expert = setup
     ref, m_ref = chunk(init(tiny_cfg.seeds, expert), expert)
@@ -154,20 +158,20 @@ def test_scan_unroll_gives_the_same_update(setup, tiny_cfg, fetchq):
 
 
 def _final_params(run_dir, cfg):
-    s = trainer.build(cfg, need_heldout=False)
+    s = runs.build(cfg, need_heldout=False)
     mgr = ckpt.manager(run_dir)
     st = ckpt.restore(mgr, max(ckpt.steps(mgr)), jax.eval_shape(lambda: s.init(cfg.seeds, s.expert)))
     return max(ckpt.steps(mgr)), jax.tree.leaves(jax.device_get(st.params))
 
 
 def test_resume_is_exact(tiny_cfg, tmp_path):
-    full = trainer.train_run(tiny_cfg, tmp_path / "full", progress=False)
-    part = trainer.train_run(tiny_cfg, tmp_path / "part", progress=False, stop_after=2)
+    full = train_loop.train_run(tiny_cfg, tmp_path / "full", progress=False)
+    part = train_loop.train_run(tiny_cfg, tmp_path / "part", progress=False, stop_after=2)
     assert ckpt.steps(ckpt.manager(part)) == [0, 2]
     speed_part = timing.read(part)
-    with pytest.raises(trainer.RunError, match="--resume"):
-        trainer.train_run(tiny_cfg, tmp_path / "part", progress=False)
-    trainer.train_run(tiny_cfg, tmp_path / "part", resume=True, progress=False)
+    with pytest.raises(runs.RunError, match="--resume"):
+        train_loop.train_run(tiny_cfg, tmp_path / "part", progress=False)
+    train_loop.train_run(tiny_cfg, tmp_path / "part", resume=True, progress=False)
     speed_resumed = timing.read(part)  # the resumed call's seconds are added to the first call's
     assert speed_resumed["wall"]["train"] > speed_part["wall"]["train"]
     assert speed_resumed["phases"]["demos"] > speed_part["phases"]["demos"]
@@ -175,7 +179,7 @@ def test_resume_is_exact(tiny_cfg, tmp_path):
     assert speed_part["env_steps_per_s"] is None and speed_resumed["env_steps_per_s"] > 0  # one call: no steady state
     sa, pa = _final_params(full, tiny_cfg)
     sb, pb = _final_params(part, tiny_cfg)
-    assert sa == sb == trainer.total_updates(tiny_cfg)
+    assert sa == sb == runs.total_updates(tiny_cfg)
     for x, y in zip(pa, pb):
         np.testing.assert_array_equal(x, y)  # bitwise
     info = json.loads((full / "run_info.json").read_text())
@@ -183,7 +187,7 @@ def test_resume_is_exact(tiny_cfg, tmp_path):
     assert json.loads((full / "config.json").read_text())["task"] == "fetchq"
 
     # eval on the finished run writes the paper's tables
-    res = trainer.eval_run(full, progress=False)
+    res = eval_runner.eval_run(full, progress=False)
     for k in ("task", "method", "seeds", "paper_protocol", "last", "per_seed_best", "strategy_distribution"):
         assert k in res
     assert set(res["paper_protocol"]["replay"]) >= {"checkpoint", "mean", "std", "per_seed"}
@@ -201,18 +205,18 @@ def test_resume_is_exact(tiny_cfg, tmp_path):
     assert all(isinstance(v, float) and v >= 0 for v in [*speed["phases"].values(), speed["total"]])
     assert speed["phases"]["eval"] > 0 and speed["total"] >= sum(speed["phases"].values())
     assert speed["phases"]["start"] > 0  # the run folder and the devices, before the demonstrations
-    assert speed["env_steps_per_s"] > 0 and speed["updates"] == trainer.total_updates(tiny_cfg)
+    assert speed["env_steps_per_s"] > 0 and speed["updates"] == runs.total_updates(tiny_cfg)
     assert speed["device"] and isinstance(speed["deterministic_ops"], bool) and speed["task"] == "fetchq"
     parts = speed["train_parts"]  # BC and the chunk compiled beside it; the calls after the first, checkpoints apart
     assert parts["bc_run"] > 0 and parts["chunk_compile"] > 0 and parts["compile_wait"] >= 0
-    assert parts["calls"] == trainer.total_updates(tiny_cfg) // tiny_cfg.updates_per_call - 1
+    assert parts["calls"] == runs.total_updates(tiny_cfg) // tiny_cfg.updates_per_call - 1
     assert parts["median_call"] > 0 and parts["checkpoint_excess"] >= 0 and parts["other_excess"] >= 0
 
 
 def test_policy_average_is_delivered_and_leaves_training_alone(setup, tiny_cfg, fetchq, tmp_path):
     """``policy_ema``: the moving average of the actor and psi starts at the (BC'd) networks, follows them with its
     decay, is what evaluation reads, survives resume bitwise, and does not change what is trained."""
-    from cogail_jax.config import ConfigError
+    from cogail_jax.algo.config import ConfigError
 
     init, chunk, expert = setup
     ref, _ = chunk(init(tiny_cfg.seeds, expert), expert)
@@ -232,7 +236,7 @@ def test_policy_average_is_delivered_and_leaves_training_alone(setup, tiny_cfg, 
     a1, e1 = flat(s1.params["actor"]), flat(s1.params["ema"]["actor"])
     assert 0 < np.abs(e1 - a0).max() and 0 < np.abs(e1 - a1).max()  # moved towards the trained actor, not onto it
     assert np.abs(e1 - a1).max() < np.abs(a0 - a1).max()
-    np.testing.assert_array_equal(flat(trainer.eval_params(s1)["params"]["actor"]), e1)  # evaluation (and play, video) act with the average
+    np.testing.assert_array_equal(flat(runs.eval_params(s1)["params"]["actor"]), e1)  # evaluation (and play, video) act with the average
 
     one = {"actor": {"w": np.float32(2.0)}, "psi": {"w": np.float32(4.0)}}  # the update rule itself
     stepped = train.ema_update(cfg, {"actor": {"w": np.float32(0.0)}, "psi": {"w": np.float32(0.0)}, "ema": one})
@@ -240,27 +244,28 @@ def test_policy_average_is_delivered_and_leaves_training_alone(setup, tiny_cfg, 
     assert train.policy_params(stepped)["actor"] is stepped["ema"]["actor"]
 
     small = cfg.replace(total_steps=4 * 16 * 4)  # resume keeps the average bitwise
-    full = trainer.train_run(small, tmp_path / "full", progress=False)
-    part = trainer.train_run(small, tmp_path / "part", progress=False, stop_after=2)
-    trainer.train_run(small, tmp_path / "part", resume=True, progress=False)
+    full = train_loop.train_run(small, tmp_path / "full", progress=False)
+    part = train_loop.train_run(small, tmp_path / "part", progress=False, stop_after=2)
+    train_loop.train_run(small, tmp_path / "part", resume=True, progress=False)
     for x, y in zip(_final_params(full, small)[1], _final_params(part, small)[1]):
         np.testing.assert_array_equal(x, y)
-    res = trainer.eval_run(full, progress=False)  # the report says which policy it evaluated
+    res = eval_runner.eval_run(full, progress=False)  # the report says which policy it evaluated
     assert res["policy_ema"] == 0.5 and "moving average" in (full / "results.md").read_text()
     with pytest.raises(ConfigError, match="policy_ema"):
         tiny_cfg.replace(policy_ema=1.0).validate()
 
 
 def test_bc_pretraining_beats_untrained_policy(tiny_cfg, fetchq):
-    from cogail_jax import evaluate
+    from cogail_jax.eval import rollouts
+    from cogail_jax.eval import protocol
 
     demos = data.load_demos(tiny_cfg.demos, fetchq)
-    held = evaluate.heldout_arrays(data.load_demos(tiny_cfg.demos, fetchq, require_init=True))
+    held = rollouts.heldout_arrays(data.load_demos(tiny_cfg.demos, fetchq, require_init=True))
     held = {k: v for k, v in held.items() if k != "strategy"}
     expert = train.expert_arrays(demos, tiny_cfg.history)
     cfg = tiny_cfg.replace(bc_steps=3000, seeds=(1,))
     init, _, nets = train.make_train_fns(cfg, fetchq, train.fit_normalizer(expert))
-    ev = evaluate.make_eval_fn(cfg, fetchq, nets)
+    ev = rollouts.make_eval_fn(cfg, fetchq, nets)
     one = lambda t: jax.tree.map(lambda x: x[None], t)  # noqa: E731  (one checkpoint)
     cfg0 = cfg.replace(bc_steps=0)
     init0, _, _ = train.make_train_fns(cfg0, fetchq, train.fit_normalizer(expert))
@@ -271,7 +276,7 @@ def test_bc_pretraining_beats_untrained_policy(tiny_cfg, fetchq):
 
 
 def test_normaliser_std_floor(tiny_cfg, fetchq):
-    from cogail_jax.config import ConfigError
+    from cogail_jax.algo.config import ConfigError
 
     expert = train.expert_arrays(data.load_demos(tiny_cfg.demos, fetchq), tiny_cfg.history)
     lo, hi = train.fit_normalizer(expert), train.fit_normalizer(expert, 0.5)
@@ -320,8 +325,8 @@ def test_ppo_bc_term_pulls_the_co_policy_to_the_demonstrations(ppo_only, fetchq,
     """bc_coef (PPO+BC): each PPO minibatch adds the co-policy's squared error on expert actions, so with a
     large weight the error on expert data ends lower than without it from the same start; the term is
     reported as ``ppo_bc``; a negative weight is refused."""
-    from cogail_jax import losses
-    from cogail_jax.config import ConfigError
+    from cogail_jax.algo import losses
+    from cogail_jax.algo.config import ConfigError
 
     base, init0, chunk0, nets = ppo_only
     _, _, expert = setup
@@ -355,7 +360,7 @@ def test_ppo_bc_term_pulls_the_co_policy_to_the_demonstrations(ppo_only, fetchq,
 def test_disc_instance_noise_gives_expert_actions_the_policy_noise(tiny_cfg, fetchq, setup):
     """disc_instance_noise: the discriminator's expert actions get the policy's action noise and clip (so the
     noise level alone cannot tell them apart); it changes the discriminator's training, off leaves it as it was."""
-    from cogail_jax import losses
+    from cogail_jax.algo import losses
 
     a = np.zeros((20000, 3), np.float32)
     a[:, 2] = 1.0  # a gripper-like dim at its bound
@@ -375,7 +380,7 @@ def test_disc_instance_noise_gives_expert_actions_the_policy_noise(tiny_cfg, fet
 def test_policy_cooldown_keeps_ppo_off_the_actor(ppo_only, fetchq, setup):
     """policy_cooldown: during a run's last N updates PPO trains the critic only. With N covering the whole
     run and the separate L_a / L_r / L_z step off, the actor ends where it started; without it, it moves."""
-    from cogail_jax.config import ConfigError
+    from cogail_jax.algo.config import ConfigError
 
     base, init0, chunk0, _ = ppo_only
     _, _, expert = setup
@@ -403,7 +408,7 @@ def test_gae_bootstraps_time_outs_and_cuts_at_every_episode_end():
     """GAE on a hand-made (T=3, N=2) rollout: env 0 times out after step 1 (bootstrapped with the critic's
     value of its final observation), env 1 fails after step 1 (terminal: no next value); both recursions stop
     there. Treating env 0's time-out as terminal gives another advantage."""
-    from cogail_jax import losses
+    from cogail_jax.algo import losses
 
     g, lam = 0.9, 0.8
     r = np.array([[1.0, 0.5], [2.0, -1.0], [0.5, 0.25]], np.float32)
@@ -428,7 +433,7 @@ def test_ppo_loss_stays_finite_when_the_policy_moved_many_stds():
     one gives a log ratio of 211: exp() overflowed to inf, inf times a negative advantage won the surrogate's min
     and the gradient was NaN (seqmanip runs diverged so). The loss and its gradient stay finite; within the bound
     the surrogate is the textbook clipped one, on both of its branches."""
-    from cogail_jax import losses
+    from cogail_jax.algo import losses
 
     def actor(p, obs, z):
         return obs * p["w"], jnp.full(obs.shape, p["log_std"])
@@ -460,8 +465,8 @@ def test_rollout_records_time_outs_with_the_value_of_the_final_observation(tiny_
     carry no final value, and a terminal step none either."""
     import cogail_envs
 
-    from cogail_jax import rollout as ro
-    from cogail_jax.networks import normalize
+    from cogail_jax.algo import rollout as ro
+    from cogail_jax.algo.networks import normalize
 
     _, _, expert = setup
     env = cogail_envs.make_env("fetchq", max_episode_steps=5)

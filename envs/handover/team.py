@@ -1,0 +1,301 @@
+"""HR-Handover's scripted human-human team (the env is :mod:`cogail_envs.handover`).
+
+The team draws the region from ``mix`` and then a continuous spot inside it (regions are separated by 5 cm
+gaps around the classification thresholds so every demo is labelled by its drawn region), a carry yaw,
+speeds, reaction delays, pauses and action noise; motions are proportional control with velocity and
+acceleration limits (smooth, minimum-jerk-like bell-shaped speed profiles).
+
+Human: wait, reach above the bar, descend, close, lift, carry to the spot, hold still there until the robot
+has it (then let go), retreat. Robot: wait, stage behind the bar's far end, move over it once the human
+holds still, descend, close, wait for the human to let go, retreat.
+
+How the robot decides: it never reads the strategy (region); WHERE it goes is the bar's actual pose (state),
+wherever the human carries it. WHEN: it starts once the human has lifted the bar and moves over the bar
+once the human holds it still at the spot (``H_HOLD``: the human's own phase, as a partner who sees the
+human has arrived), closes, and retreats once the human has let go (state).
+
+Variations of the human (:mod:`cogail_envs.variations`; the robot is unchanged):
+
+* slow / fast: the human's speed, acceleration and gain limits x0.6 / x1.4 (speed capped at 1 action unit);
+* pauses: 2 dead stops of 20-40 steps starting at a random step in [15, 200) (phase and timers frozen);
+* detour: the reach comes in from the side (a waypoint 8-15 cm to the left or right of, and 5-10 cm higher
+  than, the point above the bar) and the carry goes via a waypoint 8-15 cm to the side of the straight path
+  (and 3-8 cm up);
+* noise: action noise std x3 (0.06-0.24 instead of 0.02-0.08);
+* change_of_mind: the carry first heads for a spot of another region and holds the bar there (35-60 steps
+  in all), then carries it to its own spot.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import mjx_common as mc
+from .env import GRASP_OFF, OBJ, REGIONS_X, SPOT_Y, SPOT_Z
+from ..registry import Team
+from ..variations import CHANGE_OF_MIND, DETOUR, NOISE, VARIATION_SALT, pace_factor, pause_schedule, paused
+
+# human phases
+H_WAIT, H_REACH, H_DESCEND, H_CLOSE, H_LIFT, H_CARRY, H_HOLD, H_RETREAT = range(8)
+# robot phases
+R_WAIT, R_STAGE, R_OVER, R_DESCEND, R_CLOSE, R_RETREAT = range(6)
+
+PACE = (0.6, 1.4)
+NUM_PAUSES, PAUSE_START, PAUSE_LEN = 2, (15, 200), (20, 41)
+NOISE_FACTOR = 3.0
+DECOY_STEPS = (35, 61)
+
+
+def _rotz(yaw: jax.Array) -> jax.Array:
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    z, o = jnp.zeros_like(c), jnp.ones_like(c)
+    return jnp.array([[c, -s, z], [s, c, z], [z, z, o]])
+
+
+class TeamState(NamedTuple):
+    """Scripted human-human team (per episode; index 0 human, 1 robot where paired)."""
+
+    strategy: jax.Array   # (2,) int32 region 1..3 (same for both; the robot itself is reactive)
+    spot: jax.Array       # (3,) bar-centre target of the handover (world)
+    yaw: jax.Array        # () carry yaw of the human (rad)
+    vmax: jax.Array       # (2,) speed limits (action units)
+    amax: jax.Array       # (2,) acceleration limits (action units / step)
+    gain: jax.Array       # (2,) proportional gains
+    delay: jax.Array      # (2,) int32 start reaction delays
+    lift: jax.Array       # () lift height after grasping (m)
+    pause: jax.Array      # () int32 pause after lifting
+    release: jax.Array    # () int32 human reaction to the robot's grasp (own release)
+    retreat: jax.Array    # (2, 3) retreat offsets (world)
+    noise: jax.Array      # (2,) action noise std
+    phase: jax.Array      # (2,) int32
+    timer: jax.Array      # (2,) int32 steps spent in the current phase
+    vel: jax.Array        # (2, 3) previous translational command (world, action units)
+    anchor: jax.Array     # (2, 3) phase anchor point (world)
+    # the human's variation (neutral values for the default team)
+    rot_gain: jax.Array   # () the human's rotation gain multiplier
+    pause_t: jax.Array    # (K,) int32 pause start steps
+    pause_n: jax.Array    # (K,) int32 pause lengths (0: no pause)
+    wp_off: jax.Array     # (2, 3) detour offsets: reach (from the point above the bar), carry (from the midpoint)
+    wp_on: jax.Array      # (2,) bool: waypoint still to visit (reach, carry)
+    decoy: jax.Array      # (3,) spot of another region the human carries to first
+    decoy_n: jax.Array    # () int32 steps left of heading for it (0: none)
+
+
+def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamState, jax.Array]:
+    ks = jax.random.split(rng, 14)
+    u = lambda k, lo, hi, shape=(): jax.random.uniform(k, shape, minval=lo, maxval=hi)  # noqa: E731
+    strategy = jax.random.categorical(ks[0], jnp.log(jnp.asarray(mix, jnp.float32) + 1e-12)).astype(jnp.int32) + 1
+    lo, hi = jnp.asarray(REGIONS_X)[strategy - 1]
+    spot = jnp.stack([u(ks[1], lo, hi), u(ks[2], *SPOT_Y), u(ks[3], *SPOT_Z)])
+    v = jnp.asarray(variation, jnp.int32)
+    kv = jax.random.split(jax.random.fold_in(rng, VARIATION_SALT), 8)
+    pace = pace_factor(v, *PACE)
+    pause_t, pause_n = pause_schedule(kv[0], v, NUM_PAUSES, PAUSE_START, PAUSE_LEN)
+    side = jnp.where(jax.random.bernoulli(kv[1], 0.5, (2,)), 1.0, -1.0)
+    wp_off = jnp.stack([
+        jnp.stack([side[0] * u(kv[2], 0.08, 0.15), u(kv[3], -0.03, 0.03), u(kv[4], 0.05, 0.10)]),
+        jnp.stack([side[1] * u(kv[5], 0.08, 0.15), jnp.zeros(()), u(kv[6], 0.03, 0.08)]),
+    ])
+    other = (strategy - 1 + jax.random.randint(kv[7], (), 1, 3)) % 3  # another region (0-based)
+    dlo, dhi = jnp.asarray(REGIONS_X)[other]
+    kd = jax.random.split(jax.random.fold_in(kv[7], 1), 2)
+    decoy = spot.at[0].set(u(kd[0], dlo, dhi))
+    decoy_n = jnp.where(v == CHANGE_OF_MIND, jax.random.randint(kd[1], (), *DECOY_STEPS), 0)
+    vmax = u(ks[5], 0.5, 0.9, (2,))
+    amax = u(ks[6], 0.06, 0.12, (2,))
+    gain = u(ks[7], 0.12, 0.22, (2,))
+    noise = u(jax.random.fold_in(rng, 99), 0.02, 0.08, (2,))
+    ts = TeamState(
+        strategy=jnp.stack([strategy, strategy]),
+        spot=spot,
+        yaw=u(ks[4], -0.35, 0.35),
+        vmax=vmax.at[0].set(jnp.minimum(vmax[0] * pace, 1.0)),
+        amax=amax.at[0].multiply(pace),
+        gain=gain.at[0].multiply(pace),
+        delay=jax.random.randint(ks[8], (2,), jnp.array([2, 4]), jnp.array([15, 25])),
+        lift=u(ks[9], 0.04, 0.09),
+        pause=jax.random.randint(ks[10], (), 0, 12),
+        release=jax.random.randint(ks[11], (), 2, 7),
+        retreat=jnp.stack([
+            jnp.array([0.0, -0.12, 0.03]) + u(ks[12], -0.03, 0.03, (3,)),
+            jnp.array([0.0, 0.13, 0.03]) + u(ks[13], -0.03, 0.03, (3,)),
+        ]),
+        noise=noise.at[0].multiply(jnp.where(v == NOISE, NOISE_FACTOR, 1.0)),
+        phase=jnp.zeros((2,), jnp.int32),
+        timer=jnp.zeros((2,), jnp.int32),
+        vel=jnp.zeros((2, 3)),
+        anchor=jnp.zeros((2, 3)),
+        rot_gain=pace,
+        pause_t=pause_t,
+        pause_n=pause_n,
+        wp_off=wp_off,
+        wp_on=jnp.full((2,), v == DETOUR),
+        decoy=decoy,
+        decoy_n=decoy_n.astype(jnp.int32),
+    )
+    return ts, strategy
+
+
+def world_ctrl(d, g: mc.Gripper) -> jax.Array:
+    """The gripper's position target (world)."""
+    return jnp.asarray(g.base_pos) + jnp.asarray(g.base_mat) @ d.ctrl[g.act:g.act + 3]
+
+
+def move(p_cmd, target, vel, vmax, amax, gain):
+    """Velocity-limited, acceleration-limited proportional step (world frame, action units)."""
+    v_des = gain * (target - p_cmd) / mc.POS_SCALE
+    n = jnp.linalg.norm(v_des)
+    v_des = v_des * jnp.minimum(1.0, vmax / (n + 1e-9))
+    dv = v_des - vel
+    dn = jnp.linalg.norm(dv)
+    return vel + dv * jnp.minimum(1.0, amax / (dn + 1e-9))
+
+
+def rot_action(d, g: mc.Gripper, yaw_target, gain=0.25, vmax=0.9):
+    cur = d.ctrl[g.act + 3:g.act + 6]
+    tgt = jnp.stack([0.0, 0.0, yaw_target])
+    return jnp.clip(gain * (tgt - cur) / mc.ROT_SCALE, -vmax, vmax)
+
+
+def _context(env, ts: TeamState, state) -> dict:
+    """What both scripted agents look at this step."""
+    d = state.pipeline_state
+    h, r = env.human, env.robot
+    p_obj, R_obj = env._obj_pos(d), env._obj_mat(d)
+    grasp_h = p_obj + R_obj @ jnp.array([0.0, -GRASP_OFF, 0.0])
+    return dict(
+        d=d, p_obj=p_obj, R_obj=R_obj,
+        obj_yaw=mc.wrap_angle(mc.yaw_of(R_obj), np.pi),  # bar is symmetric under 180 deg
+        grasp_h=grasp_h.at[2].set(jnp.maximum(grasp_h[2], 0.018)),
+        grasp_r=p_obj + R_obj @ jnp.array([0.0, GRASP_OFF, 0.0]),
+        tcp_h=mc.tcp_pos(d, h), tcp_r=mc.tcp_pos(d, r),
+        yaw_h=d.ctrl[h.act + 5], yaw_r=d.ctrl[r.act + 5],
+        h_grasp=mc.is_grasping(d, h, OBJ), r_grasp=mc.is_grasping(d, r, OBJ),
+        h_open=mc.finger_gap(d, h) > 0.036,
+        released=state.info["released"] > 0,
+    )
+
+
+def _near(a, b, tol):
+    return jnp.linalg.norm(a - b) < tol
+
+
+def _human(env, ts: TeamState, c: dict):
+    """The human's phase machine: (target, yaw target, gripper, new phase, anchor, new wp_on, new decoy_n)."""
+    d, h = c["d"], env.human
+    ph, th = ts.phase[0], ts.timer[0]
+    tcp_h, yaw_h, obj_yaw = c["tcp_h"], c["yaw_h"], c["obj_yaw"]
+    above_h = c["grasp_h"] + jnp.array([0.0, 0.0, 0.07])
+    carry_h = ts.spot + _rotz(ts.yaw) @ jnp.array([0.0, -GRASP_OFF, 0.0])
+    lift_h = ts.anchor[0] + jnp.array([0.0, 0.0, ts.lift])
+    retreat_h = ts.anchor[0] + ts.retreat[0]
+    hold_pos = ts.anchor[0]
+    target_h = jnp.select(
+        [ph == H_WAIT, ph == H_REACH, ph == H_DESCEND, ph == H_CLOSE, ph == H_LIFT, ph == H_CARRY, ph == H_HOLD],
+        [world_ctrl(d, h), above_h, c["grasp_h"], hold_pos, lift_h, carry_h, carry_h], retreat_h)
+    yawt_h = jnp.select([ph <= H_CLOSE, ph <= H_HOLD], [obj_yaw, ts.yaw], yaw_h)
+    yawt_h = jnp.where(ph == H_WAIT, yaw_h, yawt_h)
+    own_release = (ph == H_HOLD) & c["r_grasp"] & (th >= ts.release)
+    grip_h = jnp.where((ph >= H_CLOSE) & (ph <= H_HOLD) & ~c["released"] & ~own_release, -1.0, 1.0)
+    adv_h = jnp.select(
+        [ph == H_WAIT, ph == H_REACH, ph == H_DESCEND, ph == H_CLOSE, ph == H_LIFT, ph == H_CARRY,
+         ph == H_HOLD],
+        [th >= ts.delay[0],
+         _near(tcp_h, above_h, 0.012) & (jnp.abs(yaw_h - obj_yaw) < 0.05),
+         _near(tcp_h, c["grasp_h"], 0.006),
+         c["h_grasp"] & (th >= 5),
+         _near(tcp_h, lift_h, 0.012) & (th >= ts.pause),
+         _near(tcp_h, carry_h, 0.008) & (jnp.abs(yaw_h - ts.yaw) < 0.05),
+         (c["released"] | own_release) & c["h_open"]],
+        False)
+    # the human's variation of its path: a decoy spot first (change of mind), waypoints (detour)
+    decoying = (ph == H_CARRY) & (ts.decoy_n > 0)
+    decoy_tcp = ts.decoy + _rotz(ts.yaw) @ jnp.array([0.0, -GRASP_OFF, 0.0])
+    wps = jnp.stack([above_h + ts.wp_off[0], 0.5 * (ts.anchor[0] + carry_h) + ts.wp_off[1]])
+    leg = jnp.stack([ph == H_REACH, ph == H_CARRY]) & ts.wp_on & ~decoying
+    k = jnp.argmax(leg)
+    wp_active = jnp.any(leg)
+    target_h = jnp.where(decoying, decoy_tcp, jnp.where(wp_active, wps[k], target_h))
+    adv_h = adv_h & ~decoying & ~wp_active
+    decoy_n = jnp.where(decoying, ts.decoy_n - 1, ts.decoy_n)  # there (or on its way) for decoy_n steps
+    wp_on = jnp.where(wp_active & _near(tcp_h, wps[k], 0.02), ts.wp_on.at[k].set(False), ts.wp_on)
+
+    regrasp_h = ((ph == H_CLOSE) & (th > 25)) | ((ph == H_LIFT) | (ph == H_CARRY)) & ~c["h_grasp"] & (c["p_obj"][2] < 0.03)
+    new_ph = jnp.where(regrasp_h, H_REACH, ph + adv_h.astype(jnp.int32))
+    anchor_h = jnp.where(adv_h & ((ph == H_DESCEND) | (ph == H_CLOSE) | (ph == H_HOLD)), tcp_h, ts.anchor[0])
+    anchor_h = jnp.where(adv_h & (ph == H_DESCEND), c["grasp_h"], anchor_h)
+    return target_h, yawt_h, grip_h, new_ph, anchor_h, wp_on, decoy_n
+
+
+def _robot(env, ts: TeamState, c: dict):
+    """The robot's phase machine: stage behind the bar's far end and above it, move over it once the human
+    holds still, descend, close, wait for the human to let go, retreat. (target, yaw target, gripper, new
+    phase, anchor, next timer)."""
+    d, r = c["d"], env.robot
+    ph = ts.phase[0]
+    pr, tr = ts.phase[1], ts.timer[1]
+    tcp_r, yaw_r, obj_yaw, grasp_r = c["tcp_r"], c["yaw_r"], c["obj_yaw"], c["grasp_r"]
+    above_r = grasp_r + jnp.array([0.0, 0.0, 0.07])
+    stage_r = grasp_r + c["R_obj"] @ jnp.array([0.0, 0.09, 0.0]) + jnp.array([0.0, 0.0, 0.08])
+    retreat_r = ts.anchor[1] + ts.retreat[1]
+    target_r = jnp.select(
+        [pr == R_WAIT, pr == R_STAGE, pr == R_OVER, pr == R_DESCEND, pr == R_CLOSE],
+        [world_ctrl(d, r), stage_r, above_r, grasp_r, ts.anchor[1]], retreat_r)
+    yawt_r = jnp.where((pr == R_WAIT) | (pr == R_RETREAT), yaw_r, obj_yaw)
+    grip_r = jnp.where(pr >= R_CLOSE, -1.0, 1.0)
+    human_gone = (ph >= H_RETREAT) | (c["released"] & c["h_open"])
+    adv_r = jnp.select(
+        [pr == R_WAIT, pr == R_STAGE, pr == R_OVER, pr == R_DESCEND, pr == R_CLOSE],
+        [(ph >= H_LIFT) & (tr >= ts.delay[1]),
+         (ph >= H_HOLD) & _near(tcp_r, stage_r, 0.015),
+         _near(tcp_r, above_r, 0.01) & (jnp.abs(yaw_r - obj_yaw) < 0.05),
+         _near(tcp_r, grasp_r, 0.006),
+         c["r_grasp"] & human_gone & (tr >= 4)],
+        False)
+    regrasp_r = (pr == R_CLOSE) & (tr > 40) & ~c["r_grasp"]
+    new_pr = jnp.where(regrasp_r, R_STAGE, pr + adv_r.astype(jnp.int32))
+    anchor_r = jnp.where(adv_r & ((pr == R_DESCEND) | (pr == R_CLOSE)), tcp_r, ts.anchor[1])
+    # robot wait timer only starts once the human carries
+    tr_next = jnp.where((pr == R_WAIT) & (ph < H_LIFT), 0, tr + 1)
+    return target_r, yawt_r, grip_r, new_pr, anchor_r, tr_next
+
+
+def team_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.Array]:
+    d = state.pipeline_state
+    h, r = env.human, env.robot
+    c = _context(env, ts, state)
+    target_h, yawt_h, grip_h, new_ph, anchor_h, wp_on, decoy_n = _human(env, ts, c)
+    target_r, yawt_r, grip_r, new_pr, anchor_r, tr_next = _robot(env, ts, c)
+    ph, pr, th = ts.phase[0], ts.phase[1], ts.timer[0]
+
+    k1, k2 = jax.random.split(rng)
+    vel_h = move(world_ctrl(d, h), target_h, ts.vel[0], ts.vmax[0], ts.amax[0], ts.gain[0])
+    vel_r = move(world_ctrl(d, r), target_r, ts.vel[1], ts.vmax[1], ts.amax[1], ts.gain[1])
+    vel_h = jnp.where(ph == H_WAIT, 0.0, vel_h)
+    vel_r = jnp.where(pr == R_WAIT, 0.0, vel_r)
+    noise = jax.random.normal(k1, (2, 6)) * ts.noise[:, None] * jnp.array([1.0, 1, 1, 0.3, 0.3, 0.3])
+    a_h = jnp.concatenate([jnp.asarray(h.base_mat.T) @ vel_h,
+                           rot_action(d, h, yawt_h, 0.25 * ts.rot_gain, jnp.minimum(0.9 * ts.rot_gain, 1.0))]) + noise[0]
+    a_r = jnp.concatenate([jnp.asarray(r.base_mat.T) @ vel_r,
+                           rot_action(d, r, mc.wrap_angle(yawt_r, np.pi))]) + noise[1]
+    # the human's variation: a dead stop (no motion, gripper as it was, its plan frozen)
+    stopped = paused(ts.pause_t, ts.pause_n, state.info["t"])
+    a_h = jnp.where(stopped, 0.0, a_h)
+    vel_h = jnp.where(stopped, 0.0, vel_h)
+    new_ph = jnp.where(stopped, ph, new_ph)
+    anchor_h = jnp.where(stopped, ts.anchor[0], anchor_h)
+    wp_on = jnp.where(stopped, ts.wp_on, wp_on)
+    decoy_n = jnp.where(stopped, ts.decoy_n, decoy_n)
+    action = jnp.clip(jnp.concatenate([a_h, grip_h[None], a_r, grip_r[None]]), -1.0, 1.0)
+
+    new_phase = jnp.stack([new_ph, new_pr]).astype(jnp.int32)
+    timer = jnp.where(new_phase != ts.phase, 0, jnp.stack([jnp.where(stopped, th, th + 1), tr_next])).astype(jnp.int32)
+    ts = ts._replace(phase=new_phase, timer=timer, vel=jnp.stack([vel_h, vel_r]),
+                     anchor=jnp.stack([anchor_h, anchor_r]), wp_on=wp_on, decoy_n=decoy_n)
+    return ts, action
+
+
+TEAM = Team(init=team_init, act=team_act, variations=True, partner_can_follow=False)

@@ -1,0 +1,251 @@
+"""Typed configuration: one dataclass, one source of truth for defaults, method presets as flag sets.
+
+A run's config is resolved in layers (:func:`resolve`): these field defaults, then the task's own settings
+(its ``default_config()``, under a named budget), then a JSON file of fields, then the command line."""
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+METHODS = ("cogail", "ma_infogail", "ma_gail", "bc_gail", "bc_single", "diayn")
+
+
+class ConfigError(ValueError):
+    """A configuration a user gave that cannot run; the message says what to change."""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    # what
+    task: str = ""  # a task name (cogail_envs.task_names()) or your own, "my_pkg.my_module:TASK"
+    method: str = "cogail"
+    seeds: tuple[int, ...] = (300, 400, 500)
+    demos: str | None = None  # training demonstrations (HDF5); default: generated and cached
+    heldout: str | None = None  # test demonstrations for replay evaluation (default: the task's test split)
+    validation: str | None = None  # validation demonstrations, for checkpoint selection (default: the task's own)
+    num_demos: int = 0  # size of the generated default training set (0: the task's default split size)
+    # our addition (0 = the paper): that many varied-human episodes of each of the robustness protocol's six
+    # variations added to the default training set (robustness.ensure_varied_training_set; README, "Robustness")
+    train_varied: int = 0
+    mix: str = "uniform"  # strategy mixture of the default datasets (uniform, D1, D2)
+    # the task's time limit in env steps, for training and evaluation (0: the task's own). Generated demonstrations
+    # are made under the task's own limit either way.
+    max_episode_steps: int = 0
+    # budget
+    total_steps: int = 6_000_000  # env steps per seed
+    num_envs: int = 64
+    unroll_length: int = 94  # num_envs * unroll_length env steps per update (~6000, the paper's buffer)
+    # the rollout's, GAE's and the return normaliser's scans over the unroll, unrolled by this factor: fewer loop
+    # iterations, each doing more (2 made fetchq's update 13 % faster on an H100; BENCHMARKS.md)
+    scan_unroll: int = 1
+    updates_per_call: int = 10  # updates fused into one jitted call (lax.scan)
+    # how the seed axis runs on several devices (--devices): "shard_map" (one SPMD program), "per_device" (the
+    # one-device program on each device, from threads) or "auto" (the task's default_config(), else per_device: an
+    # MJX task's 2-device shard_map program crashes XLA's GPU compiler)
+    multi_device: str = "auto"
+    checkpoint_every: int = 30  # updates
+    # PPO (co-policy)
+    lr: float = 3e-4  # linear decay to 0 over the run
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_eps: float = 0.2
+    ppo_epochs: int = 4
+    num_minibatches: int = 4
+    value_coef: float = 0.5
+    entropy_coef: float = 0.0
+    max_grad_norm: float = 0.5
+    init_log_std: float = -1.6  # std 0.2: the demonstrations are smooth; a noisier start is told apart at once
+    # our addition (off = the paper's state-independent std from init_log_std): after BC pre-training, each action
+    # dimension's std is the RMS of the cloned mean's residual on the demonstrations (the maximum-likelihood std of
+    # the cloned Gaussian), clipped to [0.01, exp(init_log_std)]: the co-policy explores as much as the
+    # demonstrators varied on each dimension (README, "HR-SeqManip")
+    bc_std: bool = False
+    reward_norm: bool = True
+    policy_cooldown: int = 0  # the run's last N updates: PPO trains the critic only, the co-policy moves by the
+    #   L_a / L_r steps alone (our addition, 0 = off; README, "HR-SeqManip")
+    # PPO+BC (our addition, 0 = off): every PPO minibatch adds bc_coef x the squared error of the co-policy's
+    # mean on an expert minibatch, both agents acting on psi's code of the expert history (without L_a: on the
+    # demonstration's code, losses.expert_code). Unlike lambda_a /
+    # lambda_r, whose separate Adam step is scale-free per tower, this weight sets the balance against the
+    # discriminator's policy gradient inside one optimizer step (README, "HR-SeqManip")
+    bc_coef: float = 0.0
+    # the delivered policy (our addition, 0 = off): an exponential moving average of the co-policy's and psi's
+    # parameters, updated after every update with this decay; checkpoints keep it beside the trained parameters,
+    # and evaluation, play and video act with it (the average of a GAN's generator over its last iterates)
+    policy_ema: float = 0.0
+    obs_std_floor: float = 1e-2  # floor of the observation normaliser's std (0.1 for the MJX tasks' configs)
+    # discriminator
+    disc_loss: str = "auto"  # "bce" | "lsgan" | "auto" (the task's default_config(), else lsgan)
+    disc_lr: float = 3e-4
+    gp_coef: float = 10.0
+    # instance noise (our addition, off = the paper): the expert actions the discriminator sees get the policy's
+    # current Gaussian action noise and the same clip to [-1, 1] as the policy's executed actions, so that the
+    # discriminator cannot tell the two apart by the noise alone (scripted demos are near noise-free on some
+    # dims, e.g. the gripper's exactly +-1) and its reward has to be about what the agents do (README)
+    disc_instance_noise: bool = False
+    # strategy code, psi, aux losses
+    code_dim: int = 2
+    code_grid: int = 5
+    code_noise: float = 0.2
+    history: int = 4  # K: psi reads s_{t-K..t} and a^H_{t-1}
+    lambda_z: float = 0.05  # the paper gives no value; 1.0 erodes interpolation (README)
+    lambda_a: float = 1.0
+    diversity_coef: float = 0.1  # DIAYN: weight of the diversity reward
+    la_codes: str = "demo"  # L_a's code: "psi" (the paper: psi of each step's history) or "demo" (one learned
+    # code per demonstration, psi regressing it; keeps the code constant along an episode as in the rollouts)
+    lambda_r: float = 1.0  # our addition: robot-action reconstruction on expert data with psi's code (0 = paper;
+    #   without L_a, where psi never learns the demonstrations' codes, with each demonstration's code from BC
+    #   pre-training, held fixed: losses.expert_code)
+    aux_lr: float = 3e-4
+    # the aux (psi, L_z / L_a / L_r) and discriminator learning rates decay linearly to 0 over the run, as PPO's
+    # does (off = constant, the paper's code)
+    aux_lr_decay: bool = False
+    inner_updates: int = 4  # discriminator / psi updates per train step (Algorithm 1's "update step = 1..n")
+    inner_batch: int = 256
+    # behaviour-cloning pre-training of the co-policy (and of psi, in presets with L_a) on the demonstrations
+    bc_steps: int = 0
+    bc_lr: float = 1e-3
+    # the co-policy's code in BC: "demo": one learned code per demonstration (starting from the demos'
+    # trajectories' 2 principal components, rank-spread over the code square: similar demos get nearby codes);
+    # "psi": psi's code of each step
+    bc_codes: str = "demo"
+    # evaluation
+    eval_codes: int = 100
+
+    # --- derived ---------------------------------------------------------------------------------
+    @property
+    def steps_per_update(self) -> int:
+        return self.num_envs * self.unroll_length
+
+    @property
+    def num_updates(self) -> int:
+        return max(1, self.total_steps // self.steps_per_update)
+
+    # --- method presets: which terms are on (losses.objective_terms assembles them) ------------
+    @property
+    def multi_device_mode(self) -> str:
+        if self.multi_device != "auto":
+            return self.multi_device
+        return task_default(self.task, "multi_device", "per_device")
+
+    @property
+    def use_code(self) -> bool:  # strategy code z and psi
+        return self.method in ("cogail", "ma_infogail", "diayn")
+
+    @property
+    def use_lz(self) -> bool:  # L_z through the human action mean
+        return self.method in ("cogail", "ma_infogail")
+
+    @property
+    def use_la(self) -> bool:  # L_a on expert data
+        return self.method == "cogail"
+
+    @property
+    def use_diversity(self) -> bool:  # DIAYN reward log q(z|h) - log p(z) for the co-policy
+        return self.method == "diayn"
+
+    @property
+    def bc_only(self) -> bool:  # no environment interaction, no discriminator
+        return self.method == "bc_single"
+
+    @property
+    def freeze_human(self) -> bool:  # BC-GAIL: the human tower is trained by BC only, then frozen
+        return self.method == "bc_gail"
+
+    def validate(self) -> "TrainConfig":
+        if not self.task:
+            from cogail_envs import task_names
+
+            raise ConfigError(f"no task given: pass --task, one of {', '.join(task_names())} or my_pkg.my_module:TASK")
+        if self.method not in METHODS:
+            raise ConfigError(f"unknown method {self.method!r}: choose one of {', '.join(METHODS)}")
+        if not self.seeds:
+            raise ConfigError("no seeds given: pass --seeds, e.g. --seeds 300,400,500")
+        for name in ("total_steps", "num_envs", "unroll_length", "scan_unroll", "updates_per_call", "checkpoint_every",
+                     "ppo_epochs", "num_minibatches", "inner_updates", "inner_batch", "eval_codes"):
+            if getattr(self, name) <= 0:
+                raise ConfigError(f"{name.replace('_', '-')} must be positive, got {getattr(self, name)}")
+        if not self.obs_std_floor > 0:
+            raise ConfigError(f"obs_std_floor must be positive, got {self.obs_std_floor}")
+        if self.multi_device not in ("auto", "shard_map", "per_device"):
+            raise ConfigError(f"multi_device must be auto, shard_map or per_device, got {self.multi_device!r}")
+        if self.max_episode_steps < 0:
+            raise ConfigError(f"max_episode_steps must be >= 0 (0: the task's own time limit), got {self.max_episode_steps}")
+        if self.num_demos < 0:
+            raise ConfigError(f"num_demos must be >= 0 (0: the task's default), got {self.num_demos}")
+        if self.train_varied < 0:
+            raise ConfigError(f"train_varied must be >= 0 (varied-human episodes per variation), got {self.train_varied}")
+        if self.train_varied and self.demos:
+            raise ConfigError(f"train_varied={self.train_varied} (e.g. from the task's settings) adds varied humans "
+                              "to the task's default training set, not to --demos: add --set train_varied=0 to train "
+                              "on your file alone")
+        if self.policy_cooldown < 0:
+            raise ConfigError(f"policy_cooldown must be >= 0, got {self.policy_cooldown}")
+        if not 0 <= self.policy_ema < 1:
+            raise ConfigError(f"policy_ema must be in [0, 1) (a decay per update; 0 = off), got {self.policy_ema}")
+        if self.bc_coef < 0:
+            raise ConfigError(f"bc_coef must be >= 0, got {self.bc_coef}")
+        if self.bc_std and not self.bc_steps:
+            raise ConfigError("bc_std sets the action std from BC pre-training: give bc_steps > 0 too")
+        if self.history < 0 or self.bc_steps < 0:
+            raise ConfigError("history and bc-steps must be >= 0")
+        if self.steps_per_update % self.num_minibatches:
+            raise ConfigError(
+                f"num-envs x unroll-length ({self.steps_per_update}) must be divisible by num-minibatches "
+                f"({self.num_minibatches})")
+        if self.disc_loss not in ("auto", "bce", "lsgan"):
+            raise ConfigError(f"disc-loss must be auto, bce or lsgan, got {self.disc_loss!r}")
+        return self
+
+    def replace(self, **kw) -> "TrainConfig":
+        return dataclasses.replace(self, **kw)
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), indent=2)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TrainConfig":
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(d) - names
+        if unknown:
+            raise ConfigError(f"unknown config keys {sorted(unknown)}")
+        d = dict(d)
+        if "seeds" in d:
+            d["seeds"] = tuple(int(s) for s in d["seeds"])
+        return cls(**d)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "TrainConfig":
+        return cls.from_dict(json.loads(Path(path).read_text()))
+
+
+def field_help() -> dict[str, object]:
+    return {f.name: f.default for f in dataclasses.fields(TrainConfig)}
+
+
+def task_default(task: str, name: str, default):
+    """The task's own value of a config field (its ``default_config()``), else ``default``; an "auto" field reads it."""
+    from cogail_envs import get_task
+
+    return get_task(task).default_config().get(name, default)
+
+
+def resolve(task: str, budget: str = "paper", fields: dict | None = None) -> TrainConfig:
+    """A run's config: the field defaults, updated with ``task``'s settings under ``budget`` (its
+    ``default_config()`` and ``budgets[budget]``), then with ``fields`` (a JSON file's, the command line's)."""
+    from cogail_envs import UnknownTaskError, get_task
+
+    fields = dict(fields or {})
+    task = fields.pop("task", None) or task
+    if not task:
+        return TrainConfig.from_dict(fields).validate()  # raises: no task given
+    try:
+        own = get_task(task).config(budget)
+    except UnknownTaskError as e:
+        raise ConfigError(str(e))
+    return TrainConfig.from_dict({**own, **fields, "task": task}).validate()
+
+
+__all__ = ["TrainConfig", "ConfigError", "METHODS", "field", "field_help", "resolve", "task_default"]

@@ -1,0 +1,488 @@
+"""Co-GAIL as one compiled function (laid out like brax's ``training/agents/ppo/train.py``).
+
+``make_train_fns(cfg, env, norm_stats)`` returns ``init(seeds, expert) -> TrainState`` and
+``chunk(state, expert) -> (state, metrics)``: ``cfg.updates_per_call`` train steps, each of which is
+
+1. ``rollout.rollout``: ``num_envs x unroll_length`` env steps with per-episode strategy codes;
+2. ``inner_updates`` x (``aux_step``: psi / co-policy on ``losses.aux_objective``; ``disc_step``: the
+   discriminator, BCE or LSGAN + gradient penalty) on minibatches of generated and expert data;
+3. ``rewards``: discriminator (+ DIAYN) rewards, return-normalised; GAE with time-outs bootstrapped;
+4. ``ppo_update``: ``ppo_epochs`` of clipped PPO (+ BC) over minibatches.
+
+Every function below is a module-level function of explicit arguments: ``Context`` carries the static parts
+(config, env, networks, optimizers). Everything is vmapped over a leading seed axis and scanned over
+updates, so the host only logs and saves; ``parallel.SeedChunk`` runs the seed axis over devices.
+"""
+from __future__ import annotations
+
+from functools import partial
+from typing import Any, NamedTuple
+
+import flax.struct as struct
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from . import losses
+from .config import TrainConfig
+from .networks import disc_kind, gaussian_log_prob, history_input, make_networks, normalize
+from ..runtime.parallel import SeedChunk
+from ..runtime.programs import stored
+from .rollout import Carry, code_grid, initial_carry, rollout
+
+
+class TrainState(struct.PyTreeNode):
+    """Everything needed to resume exactly (one seed; the trainer stacks seeds on a leading axis)."""
+
+    params: dict  # actor, critic, psi, codes (one learned code per demonstration, pre-tanh), disc
+    ppo_opt: Any
+    aux_opt: Any
+    disc_opt: Any
+    norm: dict  # observation normaliser (mean, std) fitted on the training demonstrations
+    ret_rms: dict  # running mean / var / count of discounted returns (reward normalisation)
+    ret_acc: jax.Array  # (num_envs,) running discounted return
+    env_state: Any  # batched brax State
+    z: jax.Array  # (num_envs, code_dim)
+    hist: jax.Array  # (num_envs, K + 1, obs_dim) raw observations s_{t-K..t}
+    prev_ah: jax.Array  # (num_envs, human_action_size) a^H_{t-1}
+    code_counter: jax.Array  # int32: next grid cell in cycle order
+    rng: jax.Array
+    update: jax.Array  # int32: updates done
+
+    @property
+    def carry(self) -> Carry:
+        return Carry(self.env_state, self.z, self.hist, self.prev_ah, self.code_counter)
+
+    def with_carry(self, c: Carry) -> "TrainState":
+        return self.replace(env_state=c.env_state, z=c.z, hist=c.hist, prev_ah=c.prev_ah, code_counter=c.code_counter)
+
+
+class Context(NamedTuple):
+    """The static parts of training: config, task, networks (modules and apply functions), optimizers."""
+
+    cfg: TrainConfig
+    env: Any
+    modules: dict  # flax modules: actor, critic, psi, disc
+    nets: losses.Nets
+    ppo_tx: optax.GradientTransformation
+    aux_tx: optax.GradientTransformation
+    disc_tx: optax.GradientTransformation
+
+
+def make_context(cfg: TrainConfig, env) -> Context:
+    modules = make_networks(cfg, env)
+    nets = losses.Nets(*(modules[k].apply for k in ("actor", "critic", "psi", "disc")), env.human_action_size,
+                       disc_kind(cfg, env))
+    return Context(cfg, env, modules, nets, *make_optimizers(cfg))
+
+
+def make_optimizers(cfg: TrainConfig):
+    total = cfg.num_updates * cfg.ppo_epochs * cfg.num_minibatches
+    sched = optax.linear_schedule(cfg.lr, 0.0, total)
+    ppo = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(sched, eps=1e-5))
+    inner = cfg.num_updates * (cfg.ppo_epochs * cfg.num_minibatches if cfg.bc_only else cfg.inner_updates)
+    decay = (lambda lr: optax.linear_schedule(lr, 0.0, inner)) if cfg.aux_lr_decay else (lambda lr: lr)
+    aux = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(decay(cfg.aux_lr)))
+    disc = optax.adam(decay(cfg.disc_lr))
+    return ppo, aux, disc
+
+
+def expert_arrays(demos, history: int) -> dict[str, np.ndarray]:
+    """Flatten padded demonstrations into per-step arrays with psi histories (numpy, done once)."""
+    obs, ah, ar, hist, prev, demo = [], [], [], [], [], []
+    for i in range(demos.num):
+        n = int(demos.length[i])
+        o = demos.obs[i, :n]
+        idx = np.clip(np.arange(n)[:, None] + np.arange(-history, 1)[None], 0, None)
+        obs.append(o)
+        ah.append(demos.actions_human[i, :n])
+        ar.append(demos.actions_robot[i, :n])
+        hist.append(o[idx])
+        p = np.zeros_like(demos.actions_human[i, :n])
+        p[1:] = demos.actions_human[i, : n - 1]
+        prev.append(p)
+        demo.append(np.full((n,), i, np.int32))
+    cat = lambda xs: np.concatenate(xs, 0).astype(np.float32)  # noqa: E731
+    return {"obs": cat(obs), "ah": cat(ah), "ar": cat(ar), "hist": cat(hist), "prev_ah": cat(prev),
+            "demo": np.concatenate(demo, 0)}
+
+
+def sample_expert(norm, expert, key, n):
+    """A minibatch of ``n`` expert steps, observations and histories normalised."""
+    i = jax.random.randint(key, (n,), 0, expert["obs"].shape[0])
+    return {"obs": normalize(norm, expert["obs"][i]), "ah": expert["ah"][i], "ar": expert["ar"][i],
+            "hist": history_input(norm, expert["hist"][i]), "prev_ah": expert["prev_ah"][i],
+            "demo": expert["demo"][i]}
+
+
+def all_finite(tree) -> jax.Array:
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]))
+
+
+# ------------------------------------------------------------------------------------------------ init
+def init_state(ctx: Context, norm: dict, code_init, rng) -> TrainState:
+    """Fresh networks, optimizers and episodes for one seed."""
+    cfg, env, mods = ctx.cfg, ctx.env, ctx.modules
+    k_a, k_c, k_p, k_d, k_env, k_z, rng = jax.random.split(rng, 7)
+    d, z0 = env.observation_size, jnp.zeros((1, cfg.code_dim))
+    params = {
+        "actor": mods["actor"].init(k_a, jnp.zeros((1, d)), z0),
+        "critic": mods["critic"].init(k_c, jnp.zeros((1, d)), z0),
+        "psi": mods["psi"].init(k_p, jnp.zeros((1, (cfg.history + 1) * d + env.human_action_size))),
+        "codes": code_init + 0.1 * jax.random.normal(k_z, code_init.shape),
+        "disc": mods["disc"].init(k_d, jnp.zeros((1, d + env.action_size))),
+    }
+    c = initial_carry(cfg, env, k_env, k_z)
+    params = with_ema_start(cfg, params)
+    state = TrainState(
+        params=params,
+        ppo_opt=ctx.ppo_tx.init({"actor": params["actor"], "critic": params["critic"]}),
+        aux_opt=ctx.aux_tx.init({"actor": params["actor"], "psi": params["psi"], "codes": params["codes"]}),
+        disc_opt=ctx.disc_tx.init(params["disc"]),
+        norm=norm,
+        ret_rms={"mean": jnp.zeros(()), "var": jnp.ones(()), "count": jnp.asarray(1e-4, jnp.float32)},
+        ret_acc=jnp.zeros((cfg.num_envs,)),
+        env_state=None, z=None, hist=None, prev_ah=None, code_counter=None,
+        rng=rng, update=jnp.zeros((), jnp.int32))
+    return state.with_carry(c)
+
+
+# ------------------------------------------------------------------------------------------------ policy average
+EMA_PARAMS = ("actor", "psi")  # what the delivered policy averages (config.policy_ema)
+
+
+def with_ema_start(cfg: TrainConfig, params: dict) -> dict:
+    """``params`` with the moving average (``params["ema"]``) restarted at the current actor and psi."""
+    if not cfg.policy_ema:
+        return params
+    return {**params, "ema": {k: params[k] for k in EMA_PARAMS}}
+
+
+def ema_update(cfg: TrainConfig, params: dict) -> dict:
+    """One step of the moving average towards the current actor and psi (no-op when ``policy_ema`` is 0)."""
+    if not cfg.policy_ema:
+        return params
+    d = cfg.policy_ema
+    ema = jax.tree.map(lambda e, p: d * e + (1.0 - d) * p, params["ema"], {k: params[k] for k in EMA_PARAMS})
+    return {**params, "ema": ema}
+
+
+def policy_params(params: dict) -> dict:
+    """The parameters the delivered policy acts with: the moving average's actor and psi where the run keeps one
+    (``policy_ema``), else the trained ones."""
+    return {**params, **params["ema"]} if "ema" in params else params
+
+
+# ------------------------------------------------------------------------------------------------ BC
+def bc_pretrain(ctx: Context, state: TrainState, expert):
+    """``bc_steps`` of behaviour cloning before training (``losses.bc_objective``): both agents on each
+    demonstration's learned code; psi learns to recognise the codes only in presets with L_a."""
+    cfg = ctx.cfg
+    tx = optax.adam(cfg.bc_lr)
+    rng, key, key_std = jax.random.split(state.rng, 3)
+    names = ("actor", "psi", "codes") if "bc_psi" in losses.objective_terms(cfg) else ("actor", "codes")
+    sub = {k: state.params[k] for k in names}
+
+    def body(carry, key):
+        sub, opt = carry
+        b = sample_expert(state.norm, expert, key, cfg.inner_batch)
+        loss, g = jax.value_and_grad(lambda p: losses.bc_objective(cfg, ctx.nets, {**state.params, **p}, b))(sub)
+        upd, opt = tx.update(g, opt, sub)
+        return (optax.apply_updates(sub, upd), opt), loss
+
+    (sub, _), bc_losses = jax.lax.scan(body, (sub, tx.init(sub)), jax.random.split(key, cfg.bc_steps))
+    params = {**state.params, **sub}
+    if cfg.bc_std:
+        params = with_bc_std(ctx, params, sample_expert(state.norm, expert, key_std, BC_STD_SAMPLE))
+    return state.replace(params=with_ema_start(cfg, params), rng=rng), bc_losses[-1]
+
+
+BC_STD_SAMPLE = 8192  # expert steps the residual's RMS is measured on
+BC_STD_MIN = 0.01
+
+
+def with_bc_std(ctx: Context, params: dict, batch: dict) -> dict:
+    """``params`` with the co-policy's log std set per action dimension to the RMS of the cloned mean's residual on
+    the expert ``batch`` (the maximum-likelihood std of the cloned Gaussian; ``bc_std``), clipped to
+    [``BC_STD_MIN``, exp(``init_log_std``)]."""
+    res = losses.bc_residual(ctx.cfg, ctx.nets, params, batch)
+    rms = jnp.sqrt(jnp.mean(res ** 2, 0))
+    log_std = jnp.clip(jnp.log(jnp.maximum(rms, 1e-12)), jnp.log(BC_STD_MIN), ctx.cfg.init_log_std)
+    actor = params["actor"]
+    return {**params, "actor": {**actor, "params": {**actor["params"], "log_std": log_std}}}
+
+
+def bc_step(ctx: Context, state: TrainState, expert):
+    """BC-single's update: supervised steps of the robot on the demonstrations; no rollout, no discriminator."""
+    cfg = ctx.cfg
+    rng, key = jax.random.split(state.rng)
+
+    def body(carry, key):
+        sub, opt = carry
+        b = sample_expert(state.norm, expert, key, cfg.inner_batch)
+        loss, g = jax.value_and_grad(lambda p: losses.bc_objective(cfg, ctx.nets, {**state.params, **p}, b))(sub)
+        upd, opt = ctx.aux_tx.update(g, opt, sub)
+        return (optax.apply_updates(sub, upd), opt), loss
+
+    sub = {"actor": state.params["actor"], "psi": state.params["psi"], "codes": state.params["codes"]}
+    keys = jax.random.split(key, cfg.ppo_epochs * cfg.num_minibatches)
+    (sub, opt), bc = jax.lax.scan(body, (sub, state.aux_opt), keys)
+    params = ema_update(cfg, {**state.params, **sub})
+    state = state.replace(params=params, aux_opt=opt, rng=rng, update=state.update + 1)
+    return state, {"bc_loss": bc.mean(), "nonfinite": (~all_finite(state.params)).astype(jnp.float32)}
+
+
+# ------------------------------------------------------------------------------------------------ inner updates
+AUX_TERMS = frozenset({"L_z", "L_a", "L_r", "diversity"})
+
+
+def aux_step(ctx: Context, params, aux_opt, gen_b, exp_b):
+    """One step of psi, the co-policy and the per-demonstration codes on ``losses.aux_objective``."""
+    if not losses.objective_terms(ctx.cfg) & AUX_TERMS:
+        return params, aux_opt, {}
+    sub = {"actor": params["actor"], "psi": params["psi"], "codes": params["codes"]}
+    (_, m), g = jax.value_and_grad(
+        lambda s: losses.aux_objective(ctx.cfg, ctx.nets, {**params, **s}, gen_b, exp_b), has_aux=True)(sub)
+    upd, aux_opt = ctx.aux_tx.update(g, aux_opt, sub)
+    return {**params, **optax.apply_updates(sub, upd)}, aux_opt, m
+
+
+def disc_step(ctx: Context, params, disc_opt, gen_b, exp_b, key):
+    """One discriminator step: expert (s, a_H, a_R) against generated (s, executed a); with
+    ``disc_instance_noise`` the expert actions get the co-policy's action noise (of ``params``) and clip."""
+    cfg, nets = ctx.cfg, ctx.nets
+    a_e = jnp.concatenate([exp_b["ah"], exp_b["ar"]], -1)
+    if cfg.disc_instance_noise:
+        a_e = losses.noisy_expert_actions(a_e, params["actor"]["params"]["log_std"], jax.random.fold_in(key, 1))
+    x_e = jnp.concatenate([exp_b["obs"], a_e], -1)
+    x_p = jnp.concatenate([gen_b["obs"], gen_b["act"]], -1)
+    (_, m), g = jax.value_and_grad(
+        lambda p: losses.discriminator_loss(nets.disc, p, x_e, x_p, nets.disc_kind, cfg.gp_coef, key), has_aux=True
+    )(params["disc"])
+    upd, disc_opt = ctx.disc_tx.update(g, disc_opt, params["disc"])
+    return optax.apply_updates(params["disc"], upd), disc_opt, m
+
+
+def inner_updates(ctx: Context, state: TrainState, flat, expert, key):
+    """``inner_updates`` x (aux_step, disc_step) on fresh minibatches of generated (``flat``) and expert data."""
+    cfg, norm = ctx.cfg, state.norm
+
+    def body(carry, key):
+        params, aux_opt, disc_opt = carry
+        k_g, k_e, k_gp = jax.random.split(key, 3)
+        gen = jax.tree.map(lambda x: x[jax.random.randint(k_g, (cfg.inner_batch,), 0, flat["obs"].shape[0])], flat)
+        exp_b = sample_expert(norm, expert, k_e, cfg.inner_batch)
+        gen_b = {"obs": normalize(norm, gen["obs"]), "act": gen["act"], "hist": history_input(norm, gen["hist"]),
+                 "prev_obs": normalize(norm, gen["hist"][:, -2]), "first": gen["first"], "z": gen["z"],
+                 "prev_ah": gen["prev_ah"]}
+        new, aux_opt, aux_m = aux_step(ctx, params, aux_opt, gen_b, exp_b)
+        # the discriminator's instance noise is that of the co-policy that generated `gen`
+        disc, disc_opt, dm = disc_step(ctx, params, disc_opt, gen_b, exp_b, k_gp)
+        return ({**new, "disc": disc}, aux_opt, disc_opt), {**dm, **aux_m}
+
+    carry = (state.params, state.aux_opt, state.disc_opt)
+    (params, aux_opt, disc_opt), m = jax.lax.scan(body, carry, jax.random.split(key, cfg.inner_updates))
+    return state.replace(params=params, aux_opt=aux_opt, disc_opt=disc_opt), jax.tree.map(jnp.mean, m)
+
+
+# ------------------------------------------------------------------------------------------------ rewards, PPO
+def normalize_returns(cfg: TrainConfig, ret_rms, ret_acc, r, done):
+    """Rewards divided by the running std of the discounted return; its accumulator restarts at episode ends."""
+
+    def body(ret, x):
+        r_t, d_t = x
+        ret = ret * cfg.gamma + r_t
+        return ret * (1 - d_t), ret
+
+    ret_acc, rets = jax.lax.scan(body, ret_acc, (r, done), unroll=cfg.scan_unroll)
+    b_mean, b_var, b_count = rets.mean(), rets.var(), rets.size
+    delta = b_mean - ret_rms["mean"]
+    tot = ret_rms["count"] + b_count
+    mean = ret_rms["mean"] + delta * b_count / tot
+    m2 = ret_rms["var"] * ret_rms["count"] + b_var * b_count + delta**2 * ret_rms["count"] * b_count / tot
+    ret_rms = {"mean": mean, "var": m2 / tot, "count": tot}
+    return ret_rms, ret_acc, r / jnp.sqrt(ret_rms["var"] + 1e-8)
+
+
+def rewards(ctx: Context, state: TrainState, traj):
+    """The discriminator's reward (+ DIAYN's diversity reward); returns ``(state, normalised, raw)``."""
+    cfg, nets = ctx.cfg, ctx.nets
+    x = jnp.concatenate([normalize(state.norm, traj["obs"]), traj["act"]], -1)
+    r = losses.discriminator_reward(nets.disc(state.params["disc"], x), nets.disc_kind)
+    if "diversity" in losses.objective_terms(cfg):
+        h = jnp.concatenate([history_input(state.norm, traj["hist"]), traj["prev_ah"]], -1)
+        r = r + cfg.diversity_coef * losses.diversity_reward(nets.psi, state.params, h, traj["z"])
+    if not cfg.reward_norm:
+        return state, r, r
+    rms, acc, r_norm = normalize_returns(cfg, state.ret_rms, state.ret_acc, r, traj["done"])
+    return state.replace(ret_rms=rms, ret_acc=acc), r_norm, r
+
+
+def mask_frozen_human(human_size: int, g_actor):
+    """BC-GAIL: no gradient reaches the human tower or the human action's log std."""
+
+    def f(path, x):
+        keys = [getattr(k, "key", None) for k in path]
+        if "human" in keys:
+            return jnp.zeros_like(x)
+        if "log_std" in keys:
+            return x * (jnp.arange(x.shape[-1]) >= human_size)
+        return x
+
+    return jax.tree_util.tree_map_with_path(f, g_actor)
+
+
+def ppo_grad(ctx: Context, params, batch, exp_b, moves):
+    """Gradient of ``losses.ppo_objective`` w.r.t. actor and critic, as the PPO step applies it: none reaches
+    the actor while it does not ``moves`` (policy_cooldown), nor the human's actions in presets without
+    ``gail_human`` (BC-GAIL's frozen human). Returns ``(grads, metrics)``."""
+    sub = {"actor": params["actor"], "critic": params["critic"]}
+    (_, m), g = jax.value_and_grad(
+        lambda p: losses.ppo_objective(ctx.cfg, ctx.nets, {**params, **p}, batch, exp_b), has_aux=True)(sub)
+    g_actor = jax.tree.map(lambda x: x * moves, g["actor"])
+    if "gail_human" not in losses.objective_terms(ctx.cfg):
+        g_actor = mask_frozen_human(ctx.nets.human_size, g_actor)
+    return {**g, "actor": g_actor}, m
+
+
+def ppo_update(ctx: Context, state: TrainState, traj, adv, ret, key, expert):
+    """``ppo_epochs`` of ``losses.ppo_objective`` over shuffled minibatches of the rollout (actor, critic)."""
+    cfg, nets = ctx.cfg, ctx.nets
+    n, on = cfg.num_envs * cfg.unroll_length, losses.objective_terms(cfg)
+    obs_n = normalize(state.norm, traj["obs"]).reshape(n, -1)
+    z, action = traj["z"].reshape(n, -1), traj["action"].reshape(n, -1)
+    # log-probs under the co-policy as the inner (L_z / L_a) updates left it: the PPO ratio starts at 1
+    mean, log_std = nets.actor(state.params["actor"], obs_n, z)
+    logp_old = jax.lax.stop_gradient(gaussian_log_prob(mean, log_std, action))
+    flat = {"obs": obs_n, "z": z, "action": action, "logp": logp_old, "adv": adv.reshape(n), "ret": ret.reshape(n)}
+    if losses.lz_in_ppo(cfg):  # L_z's co-policy part, on the rollout's own steps
+        hist = traj["hist"].reshape((n,) + traj["hist"].shape[2:])
+        flat.update(hist=history_input(state.norm, hist), prev_obs=normalize(state.norm, hist[:, -2]),
+                    first=traj["first"].reshape(n))
+    mb = n // cfg.num_minibatches
+    # policy_cooldown: the last updates train the critic only
+    moves = state.update < cfg.num_updates - cfg.policy_cooldown
+
+    def minibatch(carry, x):
+        idx, k_bc = x
+        sub, opt = carry
+        batch = jax.tree.map(lambda x: x[idx], flat)
+        exp_b = sample_expert(state.norm, expert, k_bc, cfg.inner_batch) if "ppo_bc" in on else None
+        g, m = ppo_grad(ctx, {**state.params, **sub}, batch, exp_b, moves)
+        upd, opt = ctx.ppo_tx.update(g, opt, sub)
+        return (optax.apply_updates(sub, upd), opt), m
+
+    def epoch(carry, key):
+        perm = jax.random.permutation(key, n)[: mb * cfg.num_minibatches].reshape(cfg.num_minibatches, mb)
+        k_bc = jax.random.split(jax.random.fold_in(key, 1), cfg.num_minibatches)  # leaves perm's stream as it was
+        return jax.lax.scan(minibatch, carry, (perm, k_bc))
+
+    sub = {"actor": state.params["actor"], "critic": state.params["critic"]}
+    (sub, opt), m = jax.lax.scan(epoch, (sub, state.ppo_opt), jax.random.split(key, cfg.ppo_epochs))
+    return state.replace(params={**state.params, **sub}, ppo_opt=opt), jax.tree.map(jnp.mean, m)
+
+
+# ------------------------------------------------------------------------------------------------ one update
+def train_step(ctx: Context, state: TrainState, expert):
+    """One Co-GAIL update: rollout -> aux / discriminator -> rewards, GAE -> PPO."""
+    cfg = ctx.cfg
+    if cfg.bc_only:
+        return bc_step(ctx, state, expert)
+    rng, k_roll, k_inner, k_ppo = jax.random.split(state.rng, 4)
+    carry, traj, last_value = rollout(cfg, ctx.env, ctx.nets.actor, ctx.nets.critic, state.params, state.norm,
+                                      state.carry, k_roll)
+    state = state.with_carry(carry).replace(rng=rng)
+    flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), traj)
+    state, inner_m = inner_updates(ctx, state, flat, expert, k_inner)
+    state, r_norm, r_raw = rewards(ctx, state, traj)
+    adv, ret = losses.gae(r_norm, traj["value"], traj["done"], traj["truncation"], traj["final_value"], last_value,
+                          cfg.gamma, cfg.gae_lambda, cfg.scan_unroll)
+    state, ppo_m = ppo_update(ctx, state, traj, adv, ret, k_ppo, expert)
+    state = state.replace(params=ema_update(cfg, state.params))
+    episodes = traj["done"].sum()
+    metrics = {**inner_m, **ppo_m, "reward": r_raw.mean(), "episodes": episodes,
+               "episode_success": traj["success"].sum() / jnp.maximum(episodes, 1.0),
+               "timeouts": traj["truncation"].sum(),  # episodes the time limit ended (bootstrapped)
+               "env_failures": traj["env_failed"].sum(),  # MJX steps that diverged (episode ended)
+               "nonfinite": (~all_finite(state.params)).astype(jnp.float32)}
+    return state.replace(update=state.update + 1), metrics
+
+
+def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
+    """Build ``init(seeds, expert[, before_bc]) -> state``, the jitted ``chunk(state, expert) -> (state, metrics)``
+    (a ``parallel.SeedChunk``) and the flax modules."""
+    ctx = make_context(cfg.validate(), env)
+    norm = {"mean": jnp.asarray(norm_stats["mean"], jnp.float32), "std": jnp.asarray(norm_stats["std"], jnp.float32)}
+    n_demos = int(norm_stats["num_demos"])
+    code_init = (jnp.arctanh(jnp.asarray(demo_code_init(norm_stats["features"], cfg.code_dim), jnp.float32))
+                 if "features" in norm_stats else jnp.zeros((n_demos, cfg.code_dim)))
+    # made once: every init() call of these functions reuses the compiled programs, and later runs of the same
+    # config and code load them instead of tracing them again (programs.stored)
+    init_jit = stored(jax.vmap(partial(init_state, ctx, norm, code_init)), "init", (cfg, norm, code_init))
+    bc_jit = stored(jax.vmap(partial(bc_pretrain, ctx), in_axes=(0, None)), "bc", cfg)
+
+    def init(seeds, expert, before_bc=None):  # before_bc(state): called with the initial state before BC runs
+        state = init_jit(jnp.stack([jax.random.PRNGKey(int(s)) for s in seeds]))
+        if before_bc is not None:
+            before_bc(state)
+        if cfg.bc_steps:
+            state, _ = bc_jit(state, expert)
+        return state
+
+    def chunk(state, expert):
+        step = jax.vmap(partial(train_step, ctx), in_axes=(0, None))
+        return jax.lax.scan(lambda s, _: step(s, expert), state, None, length=cfg.updates_per_call)
+
+    def abstract(seeds, expert):  # init's output shapes (from kept programs: no tracing where they are found)
+        key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
+        state = init_jit.eval_shape(jax.ShapeDtypeStruct((len(seeds),) + key.shape, key.dtype))
+        return bc_jit.eval_shape(state, expert)[0] if cfg.bc_steps else state
+
+    init.abstract = abstract
+    return init, SeedChunk(chunk, cfg.multi_device_mode, key=cfg), ctx.modules
+
+
+# ------------------------------------------------------------------------------------------------ normaliser, codes
+def fit_normalizer(expert: dict[str, np.ndarray], std_floor: float = 1e-2) -> dict[str, np.ndarray]:
+    """Observation mean/std of the training demonstrations (std floored at ``std_floor`` so near-constant
+    features, e.g. an MJX gripper's tilt, do not blow up when a policy drifts from them), the number of
+    demonstrations (BC pre-training learns one code per demonstration) and each demonstration's trajectory
+    features (the per-demonstration codes start from their principal components)."""
+    mean, std = expert["obs"].mean(0), np.maximum(expert["obs"].std(0), std_floor)
+    return {"mean": mean, "std": std, "num_demos": int(expert["demo"].max()) + 1,
+            "features": demo_features((expert["obs"] - mean) / std, expert["demo"])}
+
+
+def demo_features(obs_n: np.ndarray, demo: np.ndarray, points: int = 16) -> np.ndarray:
+    """One vector per demonstration: its normalised observations at ``points`` evenly spaced fractions of
+    its length (so demonstrations of different lengths compare phase by phase)."""
+    out = []
+    for i in range(int(demo.max()) + 1):
+        o = obs_n[demo == i]
+        idx = np.round(np.linspace(0, len(o) - 1, points)).astype(int)
+        out.append(o[idx].reshape(-1))
+    return np.stack(out).astype(np.float32)
+
+
+def demo_code_init(features: np.ndarray, code_dim: int, edge: float = 0.9) -> np.ndarray:
+    """Initial per-demonstration codes (after tanh) from the demonstrations themselves: the first ``code_dim``
+    principal components of their trajectory features, each rank-spread evenly over (-edge, edge). Demos that
+    behave alike start close, so each strategy starts as one region of the code square whose area follows
+    its share of the demos, instead of being scattered over it by a random init."""
+    f = np.asarray(features, np.float64)
+    n = f.shape[0]
+    if n < 2:
+        return np.zeros((n, code_dim), np.float32)
+    f = f - f.mean(0)
+    _, _, vt = np.linalg.svd(f, full_matrices=False)
+    pcs = f @ vt[:code_dim].T
+    if pcs.shape[1] < code_dim:
+        pcs = np.pad(pcs, ((0, 0), (0, code_dim - pcs.shape[1])))
+    ranks = np.argsort(np.argsort(pcs, 0, kind="stable"), 0, kind="stable")
+    return (edge * (2 * (ranks + 0.5) / n - 1)).astype(np.float32)
+
+
+__all__ = ["TrainState", "Context", "make_context", "make_train_fns", "train_step", "aux_step", "disc_step", "ppo_grad",
+           "ppo_update", "bc_pretrain",
+           "expert_arrays", "fit_normalizer", "demo_code_init", "demo_features", "code_grid"]

@@ -1,0 +1,453 @@
+"""The ``cogail`` command line: demos, train, eval, video, play, ..."""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+# JAX takes GPU memory as programs need it instead of 75 % of it up front: the first operation of a run starts
+# 1.7 s sooner on an H100 and training runs at the same speed (BENCHMARKS.md). Set it to true to preallocate.
+os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+
+from ..runtime.xla import DETERMINISTIC_FLAG, deterministic_ops, enable_compile_cache, set_deterministic  # noqa: F401
+
+
+def _seeds(text: str) -> tuple[int, ...]:
+    try:
+        seeds = tuple(int(s) for s in text.split(",") if s.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--seeds must be comma-separated integers, e.g. 300,400,500, got {text!r}")
+    if not seeds:
+        raise argparse.ArgumentTypeError("--seeds needs at least one integer")
+    return seeds
+
+
+def _positive(text: str) -> int:
+    try:
+        v = int(float(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return v
+
+
+EXTRA_CURVES_HELP = ("replay the extra sets and varied humans at every checkpoint, not only at the reported ones: "
+                     "each set's replay success per checkpoint in results.json (extra_sets.<name>.curve) and "
+                     "RUN/robustness_curves.png; the evaluation takes several times longer, and on a GPU the figures "
+                     "move at the rounding level (another batch)")
+
+
+def _task_help() -> str:
+    from cogail_envs import builtin_task_names
+
+    return f"a task: {', '.join(builtin_task_names())}, or your own as my_pkg.my_module:TASK (docs/tasks.md)"
+
+
+def _budget_help() -> str:
+    from cogail_envs import builtin_task_names, get_task
+
+    named = "; ".join(f"{n}: {', '.join(get_task(n).budgets)}" for n in builtin_task_names() if get_task(n).budgets)
+    return f"the task's settings under a named budget: paper (default), or one the task names ({named})"
+
+
+def _mix_help() -> str:
+    from cogail_envs import builtin_task_names, get_task
+
+    named = "; ".join(f"{n}: {', '.join(get_task(n).mixtures)}" for n in builtin_task_names() if get_task(n).mixtures)
+    return f"strategy mixture of the default datasets: uniform (default) or one the task names ({named})"
+
+
+def _add_config_args(t) -> None:
+    """The options that make a run's config (``cogail train`` and ``cogail data``)."""
+    from ..algo.config import METHODS
+
+    t.add_argument("--task", default=None, help=_task_help() + "; its own settings are the defaults")
+    t.add_argument("--budget", default="paper", help=_budget_help())
+    t.add_argument("--method", default=None, choices=METHODS, help="method preset (default cogail)")
+    t.add_argument("--seeds", type=_seeds, default=None, help="comma-separated seeds (default 300,400,500)")
+    t.add_argument("--config", default=None, help="JSON file of config fields, over the task's settings")
+    t.add_argument("--total-steps", type=_positive, default=None, help="env steps per seed")
+    t.add_argument("--num-envs", type=_positive, default=None, help="parallel environments per seed")
+    t.add_argument("--unroll-length", type=_positive, default=None, help="rollout steps per env per update")
+    t.add_argument("--checkpoint-every", type=_positive, default=None, help="updates between checkpoints")
+    t.add_argument("--bc-steps", type=int, default=None, help="behaviour-cloning pre-training steps (0 = off)")
+    t.add_argument("--demos", default=None, help="training demonstrations (HDF5); default: the task's training set")
+    t.add_argument("--heldout", default=None, help="test demonstrations for replay evaluation (default: the task's "
+                                                   "test split)")
+    t.add_argument("--validation", default=None,
+                   help="validation demonstrations for checkpoint selection (default: the task's validation split)")
+    t.add_argument("--mix", default=None, help=_mix_help())
+    t.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="override any config field, e.g. --set lambda_a=2.0 (repeatable)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from ..algo.config import METHODS
+
+    p = argparse.ArgumentParser(prog="cogail", description="Co-GAIL in JAX: learn human-robot collaboration "
+                                "policies from human-human demonstrations.")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    d = sub.add_parser("demos", help="generate scripted human-human demonstrations into an HDF5 file",
+                       description="Generate scripted human-human demonstrations (one jitted, vmapped call) "
+                                   "and write them in the project's HDF5 schema (see README).")
+    d.add_argument("--task", required=True, help=_task_help())
+    d.add_argument("--num", type=_positive, default=60, help="number of demonstrations (default 60)")
+    d.add_argument("--mix", default="uniform", help=_mix_help() + ", or comma-separated weights")
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--out", required=True, help="output .hdf5 path")
+
+    da = sub.add_parser("data", help="make every dataset a run needs (train, validation, test, varied humans)",
+                        description="Make the datasets of a run's config with the task's scripted team: the training "
+                                    "set (with its varied humans where the config adds them), the validation and "
+                                    "test splits and the varied humans the evaluation replays, in the data folder "
+                                    "($COGAIL_DATA, else ./data). Sets already there and current are kept. Training, "
+                                    "evaluation, play and video never make data: run this first (`make train` "
+                                    "does), with the options you give `cogail train`.")
+    _add_config_args(da)
+    da.add_argument("--run", default=None, help="make the datasets of this run's config instead (its config.json)")
+    da.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
+                    help="also the varied humans of the robustness evaluation (default on)")
+
+    t = sub.add_parser("train", help="train a method on a task (resumable)",
+                       description="Train with Co-GAIL (or a baseline preset); every seed runs in one vmapped "
+                                   "program. Checkpoints, config and TensorBoard logs go to --run, and "
+                                   "RUN/speed.json gets the seconds of each phase (start, demos, bc, compile, train; "
+                                   "eval and write with --eval or `cogail eval`), the env steps/s after "
+                                   "compilation and the device; `cogail bench --phases RUN` tabulates them.")
+    _add_config_args(t)
+    t.add_argument("--run", required=True, help="run directory")
+    t.add_argument("--resume", action="store_true", help="continue the run in --run from its last valid checkpoint")
+    t.add_argument("--eval", action="store_true", help="evaluate every checkpoint when training ends")
+    t.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
+                   help="with --eval: also replay against varied humans (pace, pauses, path, noise, a change of "
+                        "mind; made by `cogail data`), at the reported checkpoints; results in results.json's extra_sets "
+                        "and RUN/robustness.png; on tasks with a patient human (the env's replay_hold) also the test split and "
+                        "the varied humans replayed with a patient human (patient-*: handing an object over, it waits for the "
+                        "robot to take the object)")
+    t.add_argument("--extra-curves", action="store_true", help=EXTRA_CURVES_HELP)
+    t.add_argument("--devices", default=None,
+                   help="shard the seed axis over N devices or 'all' (one program; seeds must split evenly)")
+    t.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    e = sub.add_parser("eval", help="evaluate every checkpoint of a run (interpolation, replay, latent map)",
+                       description="Interpolation and replay evaluation of every checkpoint and seed; writes "
+                                   "results.json, results.md and figures into the run directory. Reported as the "
+                                   "paper does (per column, the checkpoint with the best mean over seeds on test), "
+                                   "beside the checkpoint selected on the validation set (reported on test) and "
+                                   "the last checkpoint. The seconds spent go into RUN/speed.json (eval, write).")
+    e.add_argument("--run", required=True, help="run directory")
+    e.add_argument("--every", type=_positive, default=1, help="evaluate every k-th checkpoint (default 1: all)")
+    e.add_argument("--replay-file", action="append", default=[], metavar="FILE.hdf5",
+                   help="an extra test set (e.g. the trials `cogail play` recorded, an imported file): replayed at "
+                        "the checkpoint selected on validation and at the paper-protocol replay checkpoint; results "
+                        "in results.json's extra_sets and in RUN/replay-<file name>/ (repeatable). An extra set's "
+                        "replay lasts until the time limit or 20 %% of it past the end of each recording, whichever "
+                        "is later (the test and validation splits: the limit)")
+    e.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
+                   help="also replay against varied humans (pace, pauses, path, noise, a change of mind; made by "
+                        "`cogail data`), at the reported checkpoints: results.json's extra_sets robust-<variation>, "
+                        "RUN/robustness.png; on tasks with a patient human (the env's replay_hold) also patient-test and "
+                        "patient-robust-<variation>: the same humans waiting, as they hand an object over, for the robot")
+    e.add_argument("--extra-curves", action="store_true", help=EXTRA_CURVES_HELP)
+    e.add_argument("--extra-set", action="append", default=[], metavar="NAME=FILE.hdf5",
+                   help="like --replay-file, under the name NAME (repeatable); a NAME starting with patient- is "
+                        "replayed with a patient human where the task has one (the env's replay_hold)")
+    e.add_argument("--reevaluate", action="store_true",
+                   help="with extra sets: evaluate every checkpoint again even if RUN/results.json is up to date "
+                        "(by default only the extra sets are replayed then)")
+    e.add_argument("--ckpt-batch", type=_positive, default=None, metavar="N",
+                   help="evaluate N checkpoints in one device program (vmapped; more memory; on a GPU the batch "
+                        "can move figures at the rounding level; default: every checkpoint on a GPU, halved while "
+                        "the device runs out of memory; 1 on the CPU)")
+    e.add_argument("--no-progress", action="store_true")
+
+    pl = sub.add_parser("play", help="drive the human agent yourself in a local web page; the robot acts live",
+                        description="Serve a local page (127.0.0.1) on which a person drives the human agent with "
+                                    "the keyboard or a gamepad while the robot acts from pi_R with psi reading the "
+                                    "live history. Several --run: trials cycle through them in a random, blind "
+                                    "order (shown as policy A, B, ...). Every finished trial is appended to the "
+                                    "trials file in the dataset schema (method, checkpoint, success recorded), "
+                                    "ready for `cogail eval --run DIR --replay-file TRIALS`.")
+    pl.add_argument("--task", default=None, help="task (default: the first run's)")
+    pl.add_argument("--run", action="append", required=True, metavar="DIR",
+                    help="training run whose robot plays (repeatable: several runs/methods, blind order)")
+    pl.add_argument("--checkpoint", default="best",
+                    help="best (best replay checkpoint of the best seed if evaluated, else latest), latest, or N")
+    pl.add_argument("--port", type=int, default=8765, help="port on 127.0.0.1 (default 8765; 0: any free port)")
+    pl.add_argument("--trials", default=None, metavar="FILE.hdf5",
+                    help="where trials are appended (default: trials.hdf5 in the first --run)")
+    pl.add_argument("--max-steps", type=_positive, default=None,
+                    help="end a trial after this many steps (default: the task's episode length)")
+    pl.add_argument("--hz", type=float, default=15.0, help="steps per second the page asks for (default 15)")
+    pl.add_argument("--seed", type=int, default=0, help="seed of the blind order and the start states")
+
+    b = sub.add_parser("bench", help="throughput table: env-only, Co-GAIL train_step (1 and 3 seeds), brax PPO",
+                       description="Env steps/s of the task alone (random actions), of the full Co-GAIL update "
+                                   "with 1 and 3 vmapped seeds, and of brax's PPO on the same env and batch; "
+                                   "prints a table and writes JSON. With --phases RUN [RUN ...]: no benchmark, "
+                                   "the seconds of each phase of those runs (their speed.json) as a markdown table.")
+    from .bench import add_arguments as _bench_args
+
+    _bench_args(b)
+
+    v = sub.add_parser("video", help="render scripted demonstrations or a run's rollouts (interpolation and replay)",
+                       description="Write a GIF/MP4 of episodes: scripted demos of --task, or, with --run, a grid "
+                                   "whose top row is interpolation rollouts (codes spread over the code space, best "
+                                   "interpolation checkpoint) and bottom row replays (the robot against held-out "
+                                   "human trajectories, best replay checkpoint). MJX tasks use MuJoCo's offscreen "
+                                   "renderer (no display needed).")
+    v.add_argument("--task", default=None, help=_task_help() + " (with --run: the run's)")
+    v.add_argument("--run", default=None, help="run directory (default: scripted demonstrations)")
+    v.add_argument("--num", type=_positive, default=4, help="episodes to render")
+    v.add_argument("--out", required=True, help="output .gif or .mp4")
+    v.add_argument("--steps", type=_positive, default=None, help="render at most this many steps per episode")
+
+    im = sub.add_parser("import", help="convert your own demonstrations (robomimic-style HDF5 or .npz) for a task",
+                        formatter_class=argparse.RawDescriptionHelpFormatter,
+                        description=(
+                            "Convert demonstrations into the project's HDF5 schema and validate them against the task.\n\n"
+                            "inputs: robomimic-style HDF5 with any key names, or a NumPy .npz (obs, actions or\n"
+                            "actions_human + actions_robot, strategy; object arrays of per-demo arrays, or padded\n"
+                            "(N, T, dim) arrays + length). Say where each FIELD is with --key FIELD=SOURCE or --map:\n"
+                            "  obs, actions (one array, split into human | robot), actions_human, actions_robot,\n"
+                            "  init, strategy (@NAME: a demo attribute; an integer: every demo), length (npz),\n"
+                            "  group, demo_prefix (HDF5: where the demos are; default data/<all groups>).\n"
+                            "SOURCEs joined with + are concatenated (e.g. obs=obs/pos+obs/flags).\n\n"
+                            "examples (the files are in the repository's examples/ folder):\n"
+                            "  cogail import --task TASK --in my_demos.npz --out data/mine.hdf5\n"
+                            "  cogail import --task TASK --in my_robomimic.hdf5 --out data/mine.hdf5 --map my_map.json"))
+    im.add_argument("--task", required=True, help=_task_help())
+    im.add_argument("--in", dest="src", required=True, metavar="FILE", help="input .hdf5/.h5 or .npz file")
+    im.add_argument("--out", required=True, metavar="FILE.hdf5", help="output file in the project's schema")
+    im.add_argument("--map", default=None, metavar="MAPFILE", help='JSON key mapping, e.g. {"obs": "states"}')
+    im.add_argument("--key", action="append", default=[], metavar="FIELD=SOURCE",
+                    help="where a field is in the input, e.g. --key obs=observations (repeatable; wins over --map)")
+
+    r = sub.add_parser("report", help="write one self-contained HTML page about a run",
+                       description="Write an HTML report of a run directory: config, learning curves from "
+                                   "TensorBoard logs, evaluation tables, figures and videos (all embedded).")
+    r.add_argument("--run", required=True, help="run directory")
+    r.add_argument("--out", default=None, metavar="FILE.html", help="output file (default RUN/report.html)")
+    for sp in sub.choices.values():
+        sp.add_argument("--nondeterministic", action="store_true",
+                        help="allow nondeterministic GPU kernels (faster; by default XLA_FLAGS gets "
+                             "--xla_gpu_deterministic_ops=true, recorded in run_info.json)")
+        sp.add_argument("--no-compile-cache", action="store_true",
+                        help="do not keep compiled programs between runs (by default they are kept in "
+                             "$COGAIL_CACHE, else in a JAX_COMPILATION_CACHE_DIR of your own, else in "
+                             "$XDG_CACHE_HOME/cogail/xla or ~/.cache/cogail/xla, with the traced programs in its "
+                             "programs/ folder, and a second run loads them instead of tracing and compiling; "
+                             "also COGAIL_NO_COMPILE_CACHE=1)")
+    return p
+
+
+def parse_field(name: str, value: str):
+    """A config field's value from text (``--set FIELD=VALUE``): booleans true/false/1/0/yes/no/on/off, integers
+    (also 1e6), floats, comma-separated seeds, none/null for optional files, else the text."""
+    import dataclasses
+
+    from ..algo.config import ConfigError, TrainConfig
+
+    fields = {f.name: f for f in dataclasses.fields(TrainConfig)}
+    if name not in fields:
+        raise ConfigError(f"--set: unknown config field {name!r}")
+    default = fields[name].default
+    kind = type(default)
+    v = value.strip()
+    try:
+        if kind is bool:
+            low = v.lower()
+            if low not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
+                raise ValueError
+            return low in ("true", "1", "yes", "on")
+        if kind is int:
+            x = float(v)
+            if x != int(x):
+                raise ValueError
+            return int(x)
+        if kind is float:
+            return float(v)
+        if kind is tuple:
+            return tuple(int(x) for x in v.split(",") if x.strip())
+        if default is None and v.lower() in ("none", "null", ""):
+            return None
+        return v
+    except ValueError:
+        want = {bool: "true or false", int: "an integer", float: "a number",
+                tuple: "comma-separated integers"}.get(kind, "text")
+        raise ConfigError(f"--set {name}={value}: expected {want}")
+
+
+def _config_from_args(a) -> "TrainConfig":  # noqa: F821
+    """The run's config: the task's settings under ``--budget``, then ``--config``'s fields, then the flags."""
+    from ..algo.config import ConfigError, resolve
+
+    fields = {}
+    if a.config:
+        path = Path(a.config)
+        if not path.exists():
+            raise ConfigError(f"config file {path} does not exist: see experiments/ for the shipped ones")
+        try:
+            fields.update(json.loads(path.read_text()))
+        except json.JSONDecodeError as e:
+            raise ConfigError(f"config file {path} is not valid JSON ({e.msg} at line {e.lineno})")
+        fields.pop("_comment", None)
+    for key in ("task", "method", "seeds", "total_steps", "num_envs", "unroll_length", "checkpoint_every",
+                "bc_steps", "demos", "heldout", "validation", "mix"):
+        val = getattr(a, key)
+        if val is not None:
+            fields[key] = val
+    for item in a.set:
+        if "=" not in item:
+            raise ConfigError(f"--set needs FIELD=VALUE, got {item!r}")
+        k, v = item.split("=", 1)
+        fields[k] = parse_field(k.strip(), v)
+    return resolve(fields.pop("task", None) or "", a.budget, fields)
+
+
+def main(argv=None) -> int:
+    from ..runtime.timing import mark_process_start
+
+    mark_process_start()  # speed.json's "start" phase counts from here
+    args = build_parser().parse_args(argv)
+    set_deterministic(not getattr(args, "nondeterministic", False))  # before JAX starts its backend
+    enable_compile_cache(not getattr(args, "no_compile_cache", False))  # before anything compiles
+    from cogail_envs import UnknownTaskError
+
+    from ..runtime.checkpoint import CheckpointError
+    from ..algo.config import ConfigError
+    from ..data.io import DatasetError
+    from .runs import RunError
+
+    try:
+        return _dispatch(args)
+    except (ConfigError, DatasetError, RunError, CheckpointError, UnknownTaskError) as e:
+        print(f"cogail {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"cogail {args.command}: interrupted; a training run continues with --resume", file=sys.stderr)
+        return 130
+    except Exception as e:  # noqa: BLE001 -- only a device out of memory is answered here; the rest re-raises
+        from ..runtime.devices import memory_error
+
+        if (message := memory_error(e)) is None:
+            raise
+        print(f"cogail {args.command}: error: {message}", file=sys.stderr)
+        return 2
+    finally:
+        mark_process_start(False)
+
+
+def _dispatch(a) -> int:
+    if a.command == "demos":
+        import time
+
+        import cogail_envs
+
+        from ..data import io as data
+        from ..data import generate as demos
+
+        env = cogail_envs.make_env(a.task)
+        mix = a.mix
+        if "," in mix:
+            mix = tuple(float(x) for x in mix.split(","))
+        try:
+            t0 = time.time()
+            eps = demos.generate(env, a.num, mix=mix, seed=a.seed)
+            dt = time.time() - t0
+        except ValueError as e:
+            from ..algo.config import ConfigError
+
+            raise ConfigError(str(e))
+        path = data.save_demos(a.out, env, eps, mixture=str(a.mix), seed=a.seed)
+        import numpy as np
+
+        counts = np.bincount(eps.strategy, minlength=env.num_strategies + 1)[1:]
+        print(f"wrote {a.num} {a.task} demonstrations to {path} in {dt:.1f} s: success {eps.success.mean():.3f}, "
+              f"mean length {eps.length.mean():.1f}, strategies {counts.tolist()}")
+        return 0
+    if a.command == "data":
+        from ..algo.config import TrainConfig
+        from ..data.sets import make_datasets
+
+        cfg = TrainConfig.load(Path(a.run) / "config.json") if a.run else _config_from_args(a)
+        for name, path in make_datasets(cfg, robustness=a.robustness).items():
+            print(f"{name}: {path}")
+        return 0
+    if a.command == "train":
+        from .eval_runner import EvalPrep, eval_run
+        from .train_loop import train_run
+
+        cfg = _config_from_args(a)
+        kept = {}  # with --eval, each checkpoint's evaluation parameters kept in memory: none is read back
+        prep = EvalPrep(a.run, a.robustness, a.extra_curves) if a.eval else None  # made ready while training runs
+        run = train_run(cfg, a.run, resume=a.resume, progress=not a.no_progress, devices=a.devices,
+                        keep=kept if a.eval else None, on_compiled=prep.start if prep else None)
+        print(f"trained: {run}")
+        if a.eval:
+            res = eval_run(run, progress=not a.no_progress, robustness=a.robustness, memory=kept,
+                           extra_curves=a.extra_curves, prepared=prep)
+            print((Path(run) / "results.md").read_text())
+            del res
+        return 0
+    if a.command == "eval":
+        from ..algo.config import ConfigError
+        from .eval_runner import eval_extra_sets, eval_run, replay_results_dir, results_current
+
+        sets = {Path(f).stem: f for f in a.replay_file}
+        for item in a.extra_set:
+            if "=" not in item:
+                raise ConfigError(f"--extra-set needs NAME=FILE, got {item!r}")
+            name, f = item.split("=", 1)
+            sets[name] = f
+        if sets and not a.reevaluate and results_current(a.run, a.every):
+            eval_extra_sets(a.run, sets)  # the checkpoints are chosen already: replay the extra sets only
+        else:
+            eval_run(a.run, progress=not a.no_progress, every=a.every, extra_sets=sets, ckpt_batch=a.ckpt_batch,
+                     robustness=a.robustness, extra_curves=a.extra_curves)
+        print((Path(a.run) / "results.md").read_text())
+        for name, f in sets.items():
+            out = replay_results_dir(a.run, name)
+            print((out / "results.md").read_text() + f"(replay against {f}; files in {out})")
+        return 0
+    if a.command == "play":
+        from .play import serve
+
+        return serve(a.run, task=a.task, port=a.port, trials=a.trials, checkpoint=a.checkpoint,
+                     max_steps=a.max_steps, hz=a.hz, seed=a.seed)
+    if a.command == "bench":
+        from .bench import run_from_args
+
+        run_from_args(a)
+        return 0
+    if a.command == "video":
+        from .video import write_video
+
+        if not a.task and not a.run:
+            from ..algo.config import ConfigError
+
+            raise ConfigError("cogail video needs --run RUN (a run's rollouts) or --task TASK (scripted demonstrations)")
+        path = write_video(a.task, a.out, run=a.run, num=a.num, steps=a.steps)
+        print(f"wrote {path}")
+        return 0
+    if a.command == "import":
+        from ..data.importer import import_demos, load_mapping, parse_keys
+
+        mapping = {**(load_mapping(a.map) if a.map else {}), **parse_keys(a.key)}
+        print(import_demos(a.src, a.out, a.task, mapping).describe(a.task))
+        return 0
+    if a.command == "report":
+        from .report import build_report
+
+        print(f"wrote {build_report(a.run, a.out)}")
+        return 0
+    return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

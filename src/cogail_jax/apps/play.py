@@ -1,0 +1,422 @@
+"""Human in the loop: ``cogail play`` serves a local web page on which a person drives the human agent.
+
+The robot acts live from pi_R(s, psi(h)): the replay protocol's robot step (``rollouts.make_robot_step``), with
+the person's actions in place of a recorded human's, so psi reads the live history. The server steps the
+environment (one jitted step per tick of the page), renders the frame (the env's ``render``: the
+task's ``cameras`` side by side, or its one view) and answers with psi's code, the step count and the outcome.
+
+Protocol (the paper's): with several ``--run`` the trials cycle through the policies in shuffled blocks (seeded)
+and the page names them only "policy A, B, ..."; every finished trial (success, time-out or "end trial") is
+appended to the trials file in the project's dataset schema, with the method, run, seed, checkpoint and policy
+label as attributes of the demo, so ``cogail eval --run DIR --replay-file TRIALS`` replays people's trials.
+
+All JAX and OpenGL work runs on one worker thread (an OpenGL context belongs to one thread); the HTTP
+threads only parse requests and wait for it.
+"""
+from __future__ import annotations
+
+import base64
+import errno
+import io
+import json
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..runtime import checkpoint as ckpt
+from ..data import io as data
+from ..eval import rollouts
+from ..eval import protocol
+from ..algo import train
+from ..algo.config import ConfigError, TrainConfig
+from .runs import RunError
+
+HOST = "127.0.0.1"
+LABELS = "ABCDEFGHIJKLMNOPQRSTUVWXYZ"
+# keyboard (KeyboardEvent.code) -> (index in the human's action, sign)
+KEYS_2D = {"ArrowRight": (0, 1), "KeyD": (0, 1), "ArrowLeft": (0, -1), "KeyA": (0, -1),
+           "ArrowUp": (1, 1), "KeyW": (1, 1), "ArrowDown": (1, -1), "KeyS": (1, -1)}
+# MJX tasks: the human's 6D delta in its base frame (x right, y towards the robot, z up) and the gripper
+KEYS_6D = {**KEYS_2D, "KeyE": (2, 1), "KeyQ": (2, -1), "KeyI": (3, 1), "KeyK": (3, -1),
+           "KeyO": (4, 1), "KeyU": (4, -1), "KeyJ": (5, 1), "KeyL": (5, -1)}
+HELP = {
+    "2d": "move: arrow keys or WASD (gamepad: left stick)\nEnter: start / next trial",
+    "6d": "move: WASD or arrows (forward/back, left/right), E/Q up/down\n"
+          "rotate: I/K pitch, U/O roll, J/L yaw\nSpace: open / close the gripper\n"
+          "gamepad: left stick move, right stick yaw / up-down, A gripper\nEnter: start / next trial",
+}
+
+
+def human_action(size: int, keys, axes=(), gripper: float = 1.0) -> np.ndarray:
+    """The human's action from the pressed keys (``KeyboardEvent.code`` names) and gamepad axes (standard
+    mapping: left stick 0/1, right stick 2/3; up is negative). 2 dims: (dx, dy); 7 dims: 6D delta + gripper."""
+    a = np.zeros(size, np.float32)
+    table = KEYS_2D if size == 2 else KEYS_6D
+    for k in keys:
+        if k in table:
+            i, sign = table[k]
+            a[i] += sign
+    ax = np.zeros(4, np.float32)
+    ax[: min(4, len(axes))] = np.asarray(list(axes)[:4], np.float32)
+    a[0] += ax[0]
+    a[1] -= ax[1]
+    if size > 2:
+        a[5] -= ax[2]  # right stick: yaw and up / down
+        a[2] -= ax[3]
+        a[6] = 1.0 if gripper >= 0 else -1.0
+    return np.clip(a, -1.0, 1.0)
+
+
+# ---------------------------------------------------------------------------------------------- runs
+def read_run_config(run_dir: str | Path, task: str | None = None) -> TrainConfig:
+    """The run's config; ``RunError`` if ``run_dir`` is not a run or belongs to another task than ``task``."""
+    run_dir = Path(run_dir)
+    if not (run_dir / "config.json").exists():
+        raise RunError(f"{run_dir} is not a run directory (no config.json): pass the --run of a training run")
+    try:
+        cfg = TrainConfig.load(run_dir / "config.json")
+    except (json.JSONDecodeError, ConfigError, TypeError) as e:
+        raise RunError(f"{run_dir}/config.json cannot be read ({e}): pass the --run of a training run")
+    if task is not None and cfg.task != task:
+        raise RunError(f"{run_dir} holds a {cfg.task} checkpoint, not {task}: pass --task {cfg.task} or a {task} run")
+    return cfg
+
+
+def pick_checkpoint(run_dir: Path, cfg: TrainConfig, steps: list[int], which: str = "best") -> tuple[int, int]:
+    """(seed index, checkpoint step). ``which``: "best" (the checkpoint selected on validation, and its best seed
+    there, when the run was evaluated, else the latest), "latest", or an update number."""
+    trained = [s for s in steps if s > 0] or steps
+    if which not in ("best", "latest"):
+        if not which.isdigit() or int(which) not in steps:
+            raise RunError(f"{run_dir} has no checkpoint {which!r}: pass --checkpoint best, latest or one of {steps}")
+        return 0, int(which)
+    res_path = run_dir / "results.json"
+    if which == "best" and res_path.exists():
+        try:
+            seed, step = protocol.selected_checkpoint(json.loads(res_path.read_text()))
+            if step in steps:
+                return (list(cfg.seeds).index(seed) if seed in cfg.seeds else 0), step
+        except (KeyError, ValueError, json.JSONDecodeError):
+            pass
+    return 0, trained[-1]
+
+
+@dataclass
+class Policy:
+    """One run's robot: parameters of one seed at one checkpoint and its jitted robot step."""
+
+    label: str
+    run: Path
+    method: str
+    seed: int
+    checkpoint: int
+    history: int
+    params: dict
+    norm: dict
+    step: Callable  # (params, norm, state, hist, prev_ah, a_h) -> (state, hist, z, a_r)
+
+
+def load_policy(run_dir: str | Path, cfg: TrainConfig, label: str, which: str = "best") -> tuple[Policy, object]:
+    """Restore a run's checkpoint; returns the policy and the run's environment."""
+    from .runs import build
+
+    run_dir = Path(run_dir)
+    s = build(cfg, need_heldout=False, run_dir=run_dir, need_demos=False)  # no demonstration file is read
+    mgr = ckpt.manager(run_dir)
+    steps = ckpt.steps(mgr)
+    if not steps:
+        raise RunError(f"{run_dir} has no checkpoints yet: train it first")
+    i, step = pick_checkpoint(run_dir, s.cfg, steps, which)
+    try:
+        state = ckpt.restore(mgr, step, s.init.abstract(s.cfg.seeds, s.expert))
+    except ckpt.CheckpointError as e:
+        raise RunError(f"{e}; pass another --checkpoint or --run, or retrain the run")
+    one = lambda tree: jax.tree.map(lambda x: x[i], tree)  # noqa: E731
+    _, robot_step = rollouts.make_robot_step(s.cfg, s.env, s.nets)
+    policy = Policy(label, run_dir, cfg.method, int(cfg.seeds[i]), int(step), cfg.history,
+                    one(train.policy_params(state.params)), one(state.norm), jax.jit(robot_step))
+    return policy, s.env
+
+
+# ---------------------------------------------------------------------------------------------- the game
+def render_frame(env, state) -> np.ndarray:
+    """The task's cameras (``Task.cameras``) side by side, or its one view."""
+    from cogail_envs import get_task
+
+    cameras = get_task(env.name).cameras
+    if not cameras:
+        return env.render(state, width=448, height=448)
+    return np.concatenate([env.render(state, width=400, height=300, camera=c) for c in cameras], axis=1)
+
+
+def png_data_url(img: np.ndarray) -> str:
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(np.asarray(img, np.uint8)).save(buf, format="PNG", compress_level=1)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
+
+
+def human_position(env, state) -> list[float]:
+    """Where the human agent is (the env's ``human_position``: e.g. map units, or a TCP in metres)."""
+    return [round(float(v), 4) for v in np.asarray(env.human_position(state))]
+
+
+class Game:
+    """One person's study: trials cycle through the policies in shuffled blocks; each finished trial is
+    appended to the trials file. Not thread-safe: call it from one thread."""
+
+    def __init__(self, env, policies: list[Policy], trials: str | Path, max_steps: int | None = None, seed: int = 0):
+        self.env, self.policies, self.trials = env, policies, Path(trials)
+        self.max_steps = min(int(max_steps or env.max_episode_steps), env.max_episode_steps)
+        self.rng = np.random.default_rng(seed)
+        self.order: list[int] = []
+        self.saved = self._count_saved()
+        self._reset = jax.jit(env.reset_from)
+        self.new_trial()
+
+    def _count_saved(self) -> int:
+        if not self.trials.exists():
+            return 0
+        import h5py
+
+        with h5py.File(self.trials, "r") as f:
+            return len([k for k in f.get("data", {}) if k.startswith("demo")])
+
+    def new_trial(self) -> None:
+        if not self.order:  # a new block: every policy once, in random order
+            self.order = [int(i) for i in self.rng.permutation(len(self.policies))]
+        self.policy = self.policies[self.order.pop()]
+        self.init = np.asarray(self.env.sample_init(jax.random.PRNGKey(int(self.rng.integers(2**31)))), np.float32)
+        self.state = self._reset(jnp.asarray(self.init))
+        self.hist = jnp.repeat(self.state.obs[None], self.policy.history + 1, 0)
+        self.prev_ah = jnp.zeros((self.env.human_action_size,), jnp.float32)
+        self.obs, self.ah, self.ar = [], [], []
+        self.z: list[float] | None = None
+        self.status, self.end = "ready", None  # ready | running | success | failure
+        self.trial = self.saved + 1
+        self._frame = None
+
+    def step(self, a_h: np.ndarray, start: bool = False) -> None:
+        """One env step with the person's action (the first non-zero action or ``start`` starts the trial)."""
+        if self.status == "ready" and (start or np.any(a_h != 0)):
+            self.status = "running"
+        if self.status != "running":
+            return
+        p = self.policy
+        a_h = jnp.asarray(a_h, jnp.float32)
+        nxt, self.hist, z, a_r = p.step(p.params, p.norm, self.state, self.hist, self.prev_ah, a_h)
+        self.obs.append(np.asarray(self.state.obs))
+        self.ah.append(np.asarray(a_h))
+        self.ar.append(np.asarray(a_r))
+        self.state, self.prev_ah, self.z = nxt, a_h, [float(v) for v in np.asarray(z)]
+        self._frame = None
+        if float(nxt.metrics["success"]) > 0:
+            self.finish("success")
+        elif float(nxt.done) > 0 or len(self.obs) >= self.max_steps:
+            self.finish("timeout")
+
+    def finish(self, end: str = "ended") -> None:
+        """End the running trial and append it to the trials file."""
+        if self.status != "running" or not self.obs:
+            return
+        m = jax.device_get(self.state.metrics)
+        success = float(m["success"]) > 0
+        p = self.policy
+        attrs = {"method": p.method, "run": str(p.run.resolve()), "seed": p.seed, "checkpoint": p.checkpoint,
+                 "policy": p.label, "success": int(success), "end": end, "time": time.strftime("%Y-%m-%d %H:%M:%S"),
+                 **{f"metric_{k}": float(v) for k, v in m.items()}}
+        data.append_demo(self.trials, self.env, np.stack(self.obs), np.stack(self.ah), np.stack(self.ar), self.init,
+                         int(self.env.classify_strategy(self.state.metrics)), attrs)
+        self.saved += 1
+        self.status, self.end = ("success" if success else "failure"), end
+
+    def view(self) -> dict:
+        """What the page shows (never the method or the run: the protocol is blind)."""
+        if self._frame is None:
+            self._frame = png_data_url(render_frame(self.env, self.state))
+        return {"status": self.status, "end": self.end, "t": len(self.obs), "max_steps": self.max_steps,
+                "policy": self.policy.label, "trial": self.trial, "saved": self.saved, "z": self.z,
+                "human": human_position(self.env, self.state), "frame": self._frame}
+
+
+# ---------------------------------------------------------------------------------------------- the server
+class App:
+    """The game behind a single worker thread, and the page's settings."""
+
+    def __init__(self, hz: float):
+        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cogail-play")
+        self.game: Game | None = None
+        self.hz = hz
+
+    def call(self, fn, *args):
+        return self.pool.submit(fn, *args).result()
+
+    def config(self) -> dict:
+        env = self.game.env
+        six = env.human_action_size > 2
+        keys = sorted({*(KEYS_6D if six else KEYS_2D), "Space", "Enter"})
+        from cogail_envs import get_task
+
+        return {"task": env.name, "hz": self.hz, "help": HELP["6d" if six else "2d"], "keys": keys,
+                "policies": len(self.game.policies), "legend": [list(x) for x in get_task(env.name).legend]}
+
+    # handlers (run on the worker thread)
+    def do_step(self, body: dict) -> dict:
+        g = self.game
+        a_h = human_action(g.env.human_action_size, body.get("keys", []), body.get("axes", []),
+                           float(body.get("gripper", 1.0)))
+        g.step(a_h, bool(body.get("start", False)))
+        return g.view()
+
+    def do_end(self, body: dict) -> dict:
+        self.game.finish("ended")
+        return self.game.view()
+
+    def do_new(self, body: dict) -> dict:
+        if self.game.status == "running":
+            self.game.finish("ended")
+        self.game.new_trial()
+        return self.game.view()
+
+
+PAGE = Path(__file__).with_name("play.html")
+
+
+class Handler(BaseHTTPRequestHandler):
+    server_version = "cogail-play"
+
+    def log_message(self, fmt, *args):  # quiet: one line per request would flood the terminal
+        pass
+
+    def _send(self, code: int, body: bytes, ctype: str) -> None:
+        self.send_response(code)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.end_headers()
+        try:
+            self.wfile.write(body)
+        except (BrokenPipeError, ConnectionResetError):  # the page was closed mid-request
+            pass
+
+    def _json(self, obj) -> None:
+        self._send(200, json.dumps(obj).encode(), "application/json")
+
+    def do_GET(self):  # noqa: N802
+        app: App = self.server.app
+        if self.path in ("/", "/index.html"):
+            self._send(200, PAGE.read_bytes(), "text/html; charset=utf-8")
+        elif self.path == "/api/config":
+            self._json(app.config())
+        elif self.path == "/api/state":
+            self._json(app.call(app.game.view))
+        else:
+            self._send(404, b"not found", "text/plain")
+
+    def do_POST(self):  # noqa: N802
+        app: App = self.server.app
+        n = int(self.headers.get("Content-Length") or 0)
+        try:
+            body = json.loads(self.rfile.read(n) or b"{}")
+        except json.JSONDecodeError:
+            return self._send(400, b"bad json", "text/plain")
+        fn = {"/api/step": app.do_step, "/api/end": app.do_end, "/api/new": app.do_new}.get(self.path)
+        if fn is None:
+            return self._send(404, b"not found", "text/plain")
+        self._json(app.call(fn, body))
+
+
+def bind(port: int) -> ThreadingHTTPServer:
+    """Listen on 127.0.0.1:port (0: any free port); ``RunError`` with the fix when the port is taken."""
+    try:
+        server = ThreadingHTTPServer((HOST, port), Handler)
+    except OSError as e:
+        if e.errno == errno.EADDRINUSE:
+            raise RunError(f"port {port} is in use: pass --port N with a free port (or --port 0 to pick one)")
+        raise RunError(f"cannot listen on {HOST}:{port} ({e.strerror}): pass another --port")
+    server.daemon_threads = True
+    return server
+
+
+def open_study(runs: list[str | Path], task: str | None = None, port: int = 8765, trials: str | Path | None = None,
+                 checkpoint: str = "best", max_steps: int | None = None, hz: float = 15.0, seed: int = 0,
+                 log=print) -> ThreadingHTTPServer:
+    """Check the runs, bind the port, load the policies, compile and warm up; returns the bound server
+    (``server.app``), ready for ``serve_forever``."""
+    import cogail_envs
+
+    if not runs:
+        raise RunError("no run given: pass --run DIR (a training run's directory; repeat it for several)")
+    cfgs = [read_run_config(r, task) for r in runs]
+    task = task or cfgs[0].task
+    for r, c in zip(runs, cfgs):
+        if c.task != task:
+            raise RunError(f"{r} holds a {c.task} checkpoint but {runs[0]} a {task} one: play one task at a time")
+    env = cogail_envs.make_env(task)
+    trials = Path(trials) if trials else Path(runs[0]) / "trials.hdf5"
+    data.check_appendable(trials, env)
+    server = bind(port)
+    try:
+        app = App(hz)
+        labels = np.random.default_rng(seed).permutation(len(runs))
+        log(f"loading {len(runs)} polic{'y' if len(runs) == 1 else 'ies'} for {task} and compiling ...")
+
+        def load():
+            policies = []
+            for r, c, li in zip(runs, cfgs, labels):
+                policy, penv = load_policy(r, c, LABELS[li], checkpoint)
+                policies.append(policy)
+            policies.sort(key=lambda p: p.label)
+            game = Game(penv, policies, trials, max_steps, seed)
+            for p in policies:  # compile every policy's step (twice: reset's and step's state) and the renderer
+                game.policy = p
+                game.hist = jnp.repeat(game.state.obs[None], p.history + 1, 0)
+                st, h, prev = game.state, game.hist, game.prev_ah
+                for _ in range(2):
+                    st, h, _, _ = p.step(p.params, p.norm, st, h, prev, jnp.zeros_like(prev))
+                jax.block_until_ready(st.obs)
+            game.order = []
+            game.new_trial()
+            game.view()
+            return game
+
+        app.game = app.call(load)
+        server.app = app
+    except BaseException:
+        server.server_close()
+        raise
+    return server
+
+
+def close(server: ThreadingHTTPServer) -> None:
+    server.server_close()
+    server.app.pool.shutdown(wait=True)
+
+
+def serve(runs, task=None, port=8765, trials=None, checkpoint="best", max_steps=None, hz=15.0, seed=0) -> int:
+    """``cogail play``: serve until Ctrl-C."""
+    server = open_study(runs, task, port, trials, checkpoint, max_steps, hz, seed)
+    game = server.app.game
+    print(f"cogail play: {game.env.name}, {len(game.policies)} polic{'y' if len(game.policies) == 1 else 'ies'} "
+          f"(shown as {', '.join(p.label for p in game.policies)}); trials are appended to {game.trials}", flush=True)
+    print(f"open http://{HOST}:{server.server_address[1]}/ in a browser (Ctrl-C to stop)", flush=True)
+    try:
+        server.serve_forever(poll_interval=0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        close(server)
+    print(f"stopped: {game.saved} trials in {game.trials}; replay them with "
+          f"`cogail eval --run {game.policies[0].run} --replay-file {game.trials}`", flush=True)
+    return 0
+
+
+__all__ = ["serve", "open_study", "close", "Game", "Policy", "human_action", "load_policy", "read_run_config"]

@@ -1,0 +1,150 @@
+"""A run: its set-up (environment, datasets, compiled programs), its directory and what is shared by the
+training loop (:mod:`.train_loop`) and the evaluation loop (:mod:`.eval_runner`)."""
+from __future__ import annotations
+
+import functools
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from ..runtime import checkpoint as ckpt
+from ..data import io as data
+from ..data import manifest, sets
+from ..eval import rollouts
+from ..eval import protocol
+from ..runtime import tblog, timing
+from ..algo import train
+from ..algo.config import ConfigError, TrainConfig
+
+
+class RunError(RuntimeError):
+    """A problem with a run (directory, checkpoints, numerics) that the user must act on."""
+
+
+@dataclass
+class Setup:
+    cfg: TrainConfig
+    env: object
+    expert: dict
+    heldout: dict | None
+    init: object
+    chunk: object
+    nets: dict
+    train_metrics: dict | None = None
+    validation: dict | None = None  # validation episodes (rollouts.heldout_arrays), for checkpoint selection
+    files: dict | None = None  # split name (test, validation) -> the demonstration file it was read from
+
+
+def effective_updates_per_call(cfg: TrainConfig) -> int:
+    return math.gcd(cfg.updates_per_call, cfg.checkpoint_every)
+
+
+def total_updates(cfg: TrainConfig) -> int:
+    upc = effective_updates_per_call(cfg)
+    return int(math.ceil(cfg.num_updates / upc) * upc)
+
+
+def build(cfg: TrainConfig, need_heldout: bool = True, need_validation: bool | None = None,
+          run_dir: str | Path | None = None, need_demos: bool = True) -> Setup:
+    """Environment, demonstrations and jitted programs of a config. The datasets are found, never made
+    (:mod:`cogail_jax.data.sets`; ``cogail data`` makes them): a missing one raises ``MissingDataError``.
+    ``need_heldout``: load the test split; ``need_validation`` (default: as ``need_heldout``): load the validation
+    split. ``run_dir``: the run whose data manifest (RUN/data.json) the files are checked against (and recorded
+    in, the first time). ``need_demos=False`` (play, video): no training file is read where the run's manifest
+    records the training arrays' shapes (restoring a checkpoint needs only those)."""
+    from cogail_envs import get_task
+
+    cfg = cfg.validate()
+    cfg = cfg.replace(updates_per_call=effective_updates_per_call(cfg))
+    task = get_task(cfg.task)
+    env = task_env = task.make_env()  # task_env: the task's own limit (the generated demos')
+    if cfg.max_episode_steps and cfg.max_episode_steps != env.max_episode_steps:
+        env = task.make_env(max_episode_steps=cfg.max_episode_steps)
+    files: dict[str, Path] = {}
+    expert = None if need_demos or run_dir is None else manifest.expert_struct(run_dir)
+    train_metrics = None
+    if expert is None:
+        files["train"] = sets.split_path(cfg, sets.TRAIN, env=task_env)
+        demos = data.load_demos(files["train"], env)
+        expert, train_metrics = train.expert_arrays(demos, cfg.history), demos.metrics
+    heldout, validation = None, None
+    if need_heldout:
+        files["test"] = sets.split_path(cfg, sets.TEST, env=task_env)
+        heldout = rollouts.heldout_arrays(data.load_demos(files["test"], env, require_init=True))
+    if need_heldout if need_validation is None else need_validation:
+        files["validation"] = sets.split_path(cfg, sets.VALIDATION, env=task_env)
+        validation = rollouts.heldout_arrays(data.load_demos(files["validation"], env, require_init=True))
+    if run_dir is not None and files:
+        manifest.check(run_dir, files, env.version)
+    init, chunk, nets = train.make_train_fns(cfg, env, train.fit_normalizer(expert, cfg.obs_std_floor))
+    return Setup(cfg, env, expert, heldout, init, chunk, nets, train_metrics, validation,
+                 {k: str(v) for k, v in files.items()})
+
+
+def run_metadata() -> dict:
+    import importlib.metadata as md
+
+    versions = {}
+    for p in ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint", "brax", "mujoco", "mujoco-mjx", "numpy", "h5py"):
+        try:
+            versions[p] = md.version(p)
+        except md.PackageNotFoundError:
+            versions[p] = None
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5,
+                                cwd=Path(__file__).parent).stdout.strip() or None
+    except Exception:  # noqa: BLE001
+        commit = None
+    from ..runtime.xla import deterministic_ops
+
+    return {"versions": versions, "git_commit": commit, "python": sys.version.split()[0],
+            "platform": platform.platform(), "devices": [str(d) for d in jax.devices()],
+            "time": time.strftime("%Y-%m-%d %H:%M:%S"),
+            # deterministic GPU kernels (on by default in the `cogail` CLI; off with --nondeterministic)
+            "xla_gpu_deterministic_ops": deterministic_ops(), "xla_flags": os.environ.get("XLA_FLAGS", "")}
+
+
+def prepare_run_dir(cfg: TrainConfig, run_dir: Path, resume: bool) -> TrainConfig:
+    cfg_path = run_dir / "config.json"
+    if resume:
+        if not cfg_path.exists():
+            raise RunError(f"cannot resume: {run_dir} has no config.json; start a new run without --resume")
+        saved = TrainConfig.load(cfg_path)
+        if saved.task != cfg.task or saved.method != cfg.method:
+            raise RunError(f"cannot resume: {run_dir} is a {saved.method} run on {saved.task}, "
+                           f"not {cfg.method} on {cfg.task}; pass the same --task/--method or another --run")
+        return saved
+    if cfg_path.exists() and ckpt.steps(ckpt.manager(run_dir)):
+        raise RunError(f"{run_dir} already holds a run: pass --resume to continue it or choose another --run")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    cfg_path.write_text(cfg.to_json())
+    (run_dir / "run_info.json").write_text(json.dumps(run_metadata(), indent=2))
+    return cfg
+
+
+
+EVAL_PARAMS = ("actor", "psi")  # what evaluating a checkpoint reads of its parameters
+
+
+def _eval_tree(state) -> dict:
+    """The delivered policy's actor and psi (``train.policy_params``) and the observation normaliser of ``state``."""
+    policy = train.policy_params(state.params)
+    return {"params": {k: policy[k] for k in EVAL_PARAMS}, "norm": state.norm}
+
+
+def eval_params(state) -> dict:
+    """What evaluating a checkpoint reads of its state: the actor's and psi's parameters and the observation
+    normaliser (seed axis first), on this process's first device, as ``checkpoint.restore`` puts them."""
+    return jax.device_put(_eval_tree(state), jax.devices()[0])
+
+

@@ -1,0 +1,282 @@
+"""The training host loop: start or resume a run, call the jitted chunk with progress and TensorBoard logs,
+checkpoint in the background. Everything on the device is :mod:`cogail_jax.algo.train`."""
+from __future__ import annotations
+
+import functools
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from ..runtime import checkpoint as ckpt
+from ..data import io as data
+from ..data import manifest
+from ..eval import rollouts
+from ..eval import protocol
+from ..runtime import tblog, timing
+from ..algo import train
+from ..algo.config import ConfigError, TrainConfig
+from .runs import RunError, Setup, build, eval_params, prepare_run_dir, total_updates
+
+
+def _log_scalars(writers, metrics, update0, steps_per_update):
+    """TensorBoard scalars ``train/<metric>`` of each update and seed (``metrics``: name -> (updates, seeds)):
+    one event per update and seed holding every metric (an event per value cost more host time than the
+    update itself on fetchq)."""
+    from tensorboardX.proto.summary_pb2 import Summary
+
+    tags = {k: f"train/{k}" for k in metrics}
+    for u in range(next(iter(metrics.values())).shape[0]):
+        step = (update0 + u + 1) * steps_per_update
+        for i, w in enumerate(writers):
+            w.add_summary(Summary(value=[Summary.Value(tag=tags[k], simple_value=float(v[u, i]))
+                                         for k, v in metrics.items()]), step)
+
+
+def seed_mesh(devices: str | int | None, num_seeds: int):
+    """A 1-D mesh over the devices that share the seed axis (``devices``: a number or "all"); None for one."""
+    from jax.sharding import Mesh
+
+    avail = jax.devices()
+    n = len(avail) if devices in ("all", None) else int(devices)
+    if devices is None or n <= 1:
+        return None
+    if n > len(avail):
+        raise RunError(f"--devices {n} asked for more devices than the {len(avail)} visible ones")
+    while num_seeds % n:  # the seed axis must split evenly
+        n -= 1
+    if n <= 1:
+        return None
+    return Mesh(np.asarray(avail[:n]), ("seeds",))
+
+
+def place_on_devices(state, expert, devices, num_seeds):
+    """Shard the leading seed axis of the state over the mesh; replicate the demonstrations. One program:
+    jit follows the input shardings, so every device runs its seeds' rollouts and updates."""
+    mesh = seed_mesh(devices, num_seeds)
+    if mesh is None:
+        return state, expert
+    from jax.sharding import NamedSharding, PartitionSpec as P
+
+    # Empty leaves (MJX's unused act / mocap / userdata fields, shape (seeds, envs, 0)) leave the sharded program
+    # replicated: placing them so from the start keeps every call's input shardings equal to the previous call's
+    # outputs (placed P("seeds") they made the second call compile the whole chunk again).
+    state = jax.tree.map(lambda x: jax.device_put(x, NamedSharding(mesh, P() if x.size == 0 else P("seeds"))), state)
+    expert = jax.device_put(expert, NamedSharding(mesh, P()))
+    return state, expert
+
+
+@dataclass
+class LoopStats:
+    """What the training loop did: the update reached, each call's seconds (the first compiles), and the env
+    steps and seconds after the first call (the steady state)."""
+    update: int
+    call_seconds: list[float]
+    loop_seconds: float = 0.0
+    steady_steps: int = 0
+    steady_seconds: float = 0.0
+    checkpoint_calls: set = field(default_factory=set)  # calls that copied or queued a checkpoint
+
+
+def _abstract(tree):
+    """Shapes, dtypes and (where committed to devices) shardings of a tree of arrays, as jit sees them when they
+    are passed to it (reading none of them: they may still be computed)."""
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding if getattr(
+        x, "committed", True) else None), tree)
+
+
+def _compile_during_bc(s: Setup, state, on_compiled, seconds: dict) -> threading.Thread:
+    """A background thread, started: the training chunk compiled for ``state``'s shapes, then ``on_compiled(s,
+    state)`` (``EvalPrep.start``). The main thread meanwhile runs BC: a long device loop that the GPU runtime
+    drives from the calling thread, which holds no Python lock then. A failure only costs the time: the first
+    training call compiles the chunk (and raises the error) itself. ``seconds["chunk_compile"]``: how long the
+    compilation took."""
+    abstract = _abstract(state)
+
+    def work():
+        t0 = time.perf_counter()
+        try:
+            s.chunk.lower(abstract, s.expert).compile()
+        except Exception:  # noqa: BLE001
+            return
+        finally:
+            seconds["chunk_compile"] = time.perf_counter() - t0
+        if on_compiled is not None:
+            on_compiled(s, abstract)
+
+    t = threading.Thread(target=work, name="compile-during-bc", daemon=True)
+    t.start()
+    return t
+
+
+def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: timing.Phases, on_compiled=None,
+                 parts: dict | None = None):
+    """The state training starts from (restored on resume, else fresh with BC pre-training, timed as ``bc``),
+    placed on the devices; returns (state, first update, whether ``on_compiled`` was called or is pending).
+    On one device a fresh run compiles the training chunk while BC runs (``_compile_during_bc``), its compilation
+    in the ``bc`` phase where it outlasts BC. ``parts`` receives the bc phase's ``timing.TRAIN_PARTS``."""
+    parts = {} if parts is None else parts
+    cfg = s.cfg
+    state, start = None, 0
+    if resume:  # restored onto this process's first device, whatever layout saved it; placed below
+        abstract = s.init.abstract(cfg.seeds, s.expert)
+        step, state = ckpt.restore_latest_valid(mgr, abstract)
+        if step is not None:
+            start = step
+            print(f"resuming {run_dir} from update {step}", flush=True)
+    fresh = state is None
+    compiling = []
+    if fresh:
+        with clock("bc"):
+            before_bc = None
+            if seed_mesh(devices, len(cfg.seeds)) is None:  # one device: the chunk compiles while BC runs
+                def before_bc(st):
+                    compiling.append(_compile_during_bc(s, st, on_compiled, parts))
+            t0 = time.perf_counter()
+            state = jax.block_until_ready(s.init(cfg.seeds, s.expert, before_bc))
+            t1 = time.perf_counter()
+            for t in compiling:
+                t.join()
+            parts.update(bc_run=t1 - t0, compile_wait=time.perf_counter() - t1)
+    state, s.expert = place_on_devices(state, s.expert, devices, len(cfg.seeds))
+    here = ckpt.layout(state)
+    if fresh:
+        ckpt.save(mgr, 0, state)
+    else:
+        saved = ckpt.saved_layout(mgr, start) or ckpt.run_layout(run_dir)
+        if saved and (saved.get("device_count"), saved.get("device_kind")) != (here["device_count"],
+                                                                              here["device_kind"]):
+            print(f"restored {len(cfg.seeds)} seeds saved on {ckpt.describe(saved)} onto {ckpt.describe(here)}",
+                  flush=True)
+    ckpt.record_layout(run_dir, here, start)
+    return state, start, bool(compiling)
+
+
+def _postfix(metrics: dict, stats: LoopStats) -> dict:
+    el = stats.steady_seconds
+    post = {"env_steps/s": f"{stats.steady_steps / el:.3g}" if el > 0 and stats.steady_steps else "-"}
+    for key, short in (("episode_success", "succ"), ("disc_loss", "d_loss"), ("loss_z", "L_z"),
+                       ("loss_a", "L_a"), ("bc_loss", "bc")):
+        if key in metrics:
+            post[short] = f"{metrics[key][-1].mean():.3f}"
+    return post
+
+
+def _check_and_log(writers, metrics, update0: int, cfg: TrainConfig, saver) -> dict:
+    """One call's metrics to the host: stop on non-finite parameters, else log them to TensorBoard."""
+    metrics = jax.device_get(metrics)
+    if np.any(metrics["nonfinite"] > 0):
+        saver.wait()
+        u = update0 + int(np.argmax(np.any(metrics["nonfinite"] > 0, axis=1))) + 1
+        raise RunError(f"training diverged at update {u} (non-finite parameters); the last good "
+                       f"checkpoint (update {max(ckpt.steps(saver.mgr))}) is kept: lower --lr or change the seed")
+    _log_scalars(writers, metrics, update0, cfg.steps_per_update)
+    return metrics
+
+
+def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool, stop_after: int | None,
+                keep: dict | None = None, on_compiled=None):
+    """Call the jitted chunk until the budget (or ``stop_after``), logging and checkpointing; returns LoopStats.
+
+    The host never holds the device up: each call is dispatched before the previous call's metrics are logged; a
+    checkpoint's state is copied on the device right after its call and written by a background thread
+    (``checkpoint.BackgroundSaver``) once that call's metrics show finite parameters, while the next call runs.
+    ``keep``: filled with {update: eval_params(...)} of every checkpoint written, so that ``eval_run`` need not
+    read them back from disk. ``on_compiled(s, state)`` is called once the first call has run (``EvalPrep.start``)."""
+    from tensorboardX import FileWriter
+    from tqdm import tqdm
+
+    cfg, upc, total = s.cfg, s.cfg.updates_per_call, total_updates(s.cfg)
+    writers = [FileWriter(str(run_dir / "tb" / f"seed_{sd}")) for sd in cfg.seeds]
+    bar = tqdm(total=total, initial=start, unit="upd", disable=not progress, dynamic_ncols=True, file=sys.stdout)
+    saver = ckpt.BackgroundSaver(mgr)
+    stats, t_loop = LoopStats(start, []), time.perf_counter()
+    pending = None  # (first update, device metrics, (update, state copy) or None) of the call not logged yet
+
+    def drain():
+        nonlocal pending
+        if pending is not None:
+            (u0, m, to_save), pending = pending, None
+            if u0 != start and stats.call_seconds:  # a finished call after the first (compiling) one
+                stats.steady_steps += upc * cfg.steps_per_update * len(cfg.seeds)
+                stats.steady_seconds = time.perf_counter() - t_loop - stats.call_seconds[0]
+            bar.set_postfix(_postfix(_check_and_log(writers, m, u0, cfg, saver), stats))
+            if to_save is not None:
+                saver.submit(*to_save)
+                if keep is not None:
+                    keep[to_save[0]] = eval_params(to_save[1])
+
+    try:
+        t_last = time.perf_counter()
+        while stats.update < total and (stop_after is None or stats.update < stop_after):
+            state, metrics = s.chunk(state, s.expert)
+            if not stats.call_seconds:  # the first call compiles: timed on its own
+                jax.block_until_ready(metrics)
+                if on_compiled is not None:
+                    on_compiled(s, state)
+            u0, stats.update = stats.update, stats.update + upc
+            at_ckpt = stats.update % cfg.checkpoint_every == 0 or stats.update >= total
+            copy = (stats.update, saver.copy(state)) if at_ckpt else None
+            if at_ckpt or (pending is not None and pending[2] is not None):  # copies one, or queues the last
+                stats.checkpoint_calls.add(len(stats.call_seconds))
+            drain()
+            pending = (u0, metrics, copy)
+            now = time.perf_counter()
+            stats.call_seconds.append(now - t_last)
+            t_last = now
+            stats.loop_seconds = now - t_loop
+            stats.steady_seconds = stats.loop_seconds - stats.call_seconds[0]
+            bar.update(upc)
+        drain()
+        saver.wait()
+        stats.loop_seconds = time.perf_counter() - t_loop
+        stats.steady_seconds = stats.loop_seconds - stats.call_seconds[0] if stats.call_seconds else 0.0
+    finally:
+        saver.close()
+        bar.close()
+        for w in writers:
+            w.close()
+    return stats
+
+
+def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True,
+              stop_after: int | None = None, devices: str | int | None = None, keep: dict | None = None,
+              on_compiled=None) -> Path:
+    """Train (or resume) a run; returns the run directory. ``stop_after`` stops early after that many updates
+    (tests use it to simulate an interrupted run). Records the time of each phase in RUN/speed.json
+    (``timing``; a resumed run adds to it). ``keep``: a dict that receives each checkpoint's ``eval_params``
+    as it is written, for ``eval_run(..., memory=keep)``. ``on_compiled``: see ``_train_loop``."""
+    clock = timing.Phases()
+    clock.take_process_start()  # the command's imports before this call count as "start"
+    run_dir = Path(run_dir)
+    with clock("start"):
+        cfg = prepare_run_dir(cfg, run_dir, resume)
+        from ..runtime.devices import cpu_warning, describe_devices  # where it runs; a CPU warning for paper-sized MJX runs
+        print("\n".join([describe_devices(), *cpu_warning(cfg)]), flush=True)
+    with clock("demos"):  # found, not made (`cogail data` makes them), and recorded in RUN/data.json
+        s = build(cfg, need_heldout=False, run_dir=run_dir)
+        manifest.record_expert(run_dir, s.expert)
+    mgr = ckpt.manager(run_dir)
+    parts: dict = {}
+    state, start, called = _start_state(s, mgr, run_dir, resume, devices, clock, on_compiled, parts)
+    stats = _train_loop(s, state, mgr, run_dir, start, progress, stop_after, keep, None if called else on_compiled)
+    compile_s = timing.compile_estimate(stats.call_seconds)
+    clock.add("compile", compile_s)
+    clock.add("train", stats.loop_seconds - compile_s)
+    parts.update(timing.call_parts(stats.call_seconds, stats.checkpoint_calls))
+    timing.write(run_dir, timing.merge_train(
+        timing.read(run_dir) if resume else {}, clock, stats.steady_steps, stats.steady_seconds, resume, parts,
+        task=s.cfg.task, method=s.cfg.method, updates=stats.update, seeds=len(s.cfg.seeds),
+        steps_per_update=s.cfg.steps_per_update, **timing.device_info()))
+    return run_dir
+
+

@@ -1,0 +1,1 @@
+"""Evaluation: the device programs (interpolation, replay), the reporting protocol and its figures."""

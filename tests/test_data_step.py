@@ -1,0 +1,57 @@
+"""Data is an explicit step: `cogail data` makes a run's sets, nothing else does; a run records its data in
+RUN/data.json, and evaluating it against changed data stops with one sentence."""
+from __future__ import annotations
+
+import json
+
+import pytest
+from cogail_envs import get_task
+
+from cogail_jax.apps import cli
+from cogail_jax.data import io as data
+from cogail_jax.data import generate as demos
+
+TINY = ["--task", "fetchq", "--seeds", "3", "--set", "train_varied=0", "--set", "num_envs=4", "--set",
+        "unroll_length=16", "--set", "updates_per_call=2", "--set", "checkpoint_every=2", "--set", "total_steps=128",
+        "--set", "ppo_epochs=2", "--set", "num_minibatches=2", "--set", "inner_updates=2", "--set", "inner_batch=32",
+        "--set", "bc_steps=0", "--set", "eval_codes=4"]
+
+
+@pytest.fixture()
+def small_splits(tmp_path, monkeypatch):
+    monkeypatch.setenv("COGAIL_DATA", str(tmp_path / "data"))
+    for split, n in (("train", 6), ("validation", 3), ("test", 3)):
+        monkeypatch.setitem(get_task("fetchq").splits, split, n)
+    return tmp_path
+
+
+def test_data_is_made_by_its_own_step_and_checked_against_the_run(small_splits, fetchq, capsys):
+    tmp = small_splits
+    run = tmp / "run"
+    # nothing makes data on the side: training without `cogail data` stops in one sentence naming it
+    assert cli.main(["train", *TINY, "--run", str(run), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "cogail data" in err and err.strip().count("\n") == 0 and not (tmp / "data").exists()
+    assert cli.main(["data", *TINY, "--no-robustness"]) == 0
+    made = sorted(p.name for p in (tmp / "data").glob("*.hdf5"))
+    assert made == ["fetchq_uniform_test.hdf5", "fetchq_uniform_train.hdf5", "fetchq_uniform_validation.hdf5"]
+    mtimes = {p: p.stat().st_mtime_ns for p in (tmp / "data").glob("*.hdf5")}
+    assert cli.main(["data", *TINY, "--no-robustness"]) == 0  # current sets are kept as they are
+    assert {p: p.stat().st_mtime_ns for p in mtimes} == mtimes
+    assert cli.main(["train", *TINY, "--run", str(run), "--no-progress", "--eval", "--no-robustness"]) == 0
+    man = json.loads((run / "data.json").read_text())
+    assert set(man["sets"]) == {"train", "validation", "test"} and man["expert"]
+    assert man["sets"]["test"]["env_version"] == fetchq.version
+    capsys.readouterr()
+    # the test split made again with other episodes (as after a change of physics): evaluation stops, never regenerates
+    test = tmp / "data" / "fetchq_uniform_test.hdf5"
+    data.save_demos(test, fetchq, demos.generate(fetchq, 3, seed=9), seed=9, generated=3)
+    before = test.read_bytes()
+    assert cli.main(["eval", "--run", str(run), "--no-progress", "--no-robustness"]) == 2
+    err = capsys.readouterr().err
+    assert str(test) in err and "has changed" in err and err.strip().count("\n") == 0
+    assert test.read_bytes() == before
+    # a missing split of a run: one sentence naming `cogail data`
+    test.unlink()
+    assert cli.main(["eval", "--run", str(run), "--no-progress", "--no-robustness"]) == 2
+    assert "cogail data" in capsys.readouterr().err

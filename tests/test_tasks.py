@@ -1,0 +1,222 @@
+"""The task API: the env contract over every registered task, the registry, and the package's layout rules (no
+module outside a task's package names a built-in task; no import circle)."""
+from __future__ import annotations
+
+import ast
+import io
+import sys
+import tokenize
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import cogail_envs
+from cogail_envs import Task, Team, UnknownTaskError, builtin_task_names, get_task
+
+ROOT = Path(__file__).parents[1]
+EXAMPLE = "examples.table_carry:TASK"
+TASKS = [*builtin_task_names(), *([EXAMPLE] if (ROOT / "examples" / "table_carry").exists() else [])]
+LIMIT = 3  # a time limit short enough to reach in a test
+
+
+@pytest.fixture(scope="module", params=TASKS)
+def contract(request):
+    """One task's env at a short time limit, and one compiled program: reset from a sampled init twice (reset_from
+    reproduces it), LIMIT steps of a fixed action, and classify_strategy of the last metrics."""
+    monkey = pytest.MonkeyPatch()
+    monkey.chdir(ROOT)  # examples/ importable as from the repository root
+    task = get_task(request.param)
+    env = task.make_env(max_episode_steps=LIMIT)
+
+    @jax.jit
+    def run(key):
+        init = env.sample_init(key)
+        s0, s0b = env.reset_from(init), env.reset_from(init)
+        a = jnp.zeros(env.action_size)
+
+        def body(s, _):
+            n = env.step(s, a)
+            return n, (n.obs, n.done, n.info["truncation"], n.info["t"], n.metrics["success"])
+
+        last, trace = jax.lax.scan(body, s0, None, length=LIMIT)
+        return init, s0, s0b, last, trace, env.classify_strategy(last.metrics)
+
+    out = jax.device_get(run(jax.random.PRNGKey(0)))
+    yield task, env, out
+    monkey.undo()
+
+
+def test_env_contract_shapes_and_action_split(contract):
+    task, env, (init, s0, _, last, trace, _) = contract
+    assert env.name == task.name and env.action_size == env.human_action_size + env.robot_action_size
+    assert env.human_action_size > 0 and env.robot_action_size > 0 and env.num_strategies == len(env.strategy_names)
+    assert s0.obs.shape == (env.observation_size,) and s0.obs.dtype == np.float32 and np.all(np.isfinite(s0.obs))
+    assert init.shape == (env.init_size,)
+    assert trace[0].shape == (LIMIT, env.observation_size) and np.all(np.isfinite(trace[0]))
+    assert "success" in s0.metrics and "t" in s0.info and "truncation" in s0.info
+    assert jax.tree.structure(s0) == jax.tree.structure(last)  # step keeps reset's state layout (scan needs it)
+    a = np.arange(env.action_size, dtype=np.float32)
+    h, r = env.split_action(a)
+    assert h.shape == (env.human_action_size,) and r.shape == (env.robot_action_size,)
+
+
+def test_env_contract_reset_from_reproduces_the_start(contract):
+    _, _, (_, s0, s0b, *_) = contract
+    for x, y in zip(jax.tree.leaves(s0), jax.tree.leaves(s0b)):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_env_contract_time_limit_is_a_truncation(contract):
+    _, env, (_, _, _, _, (obs, done, trunc, t, success), _) = contract
+    np.testing.assert_array_equal(t, np.arange(1, LIMIT + 1))
+    assert env.max_episode_steps == LIMIT
+    if success.max() == 0:  # standing still never succeeds: the limit ends the episode, as a truncation
+        np.testing.assert_array_equal(done, [0.0] * (LIMIT - 1) + [1.0])
+        np.testing.assert_array_equal(trunc, [0.0] * (LIMIT - 1) + [1.0])
+
+
+def test_env_contract_strategy_classification(contract):
+    task, env, (*_, last, trace, sid) = contract
+    assert np.asarray(sid).dtype == np.int32 and np.shape(sid) == ()
+    if trace[4].max() == 0:
+        assert int(sid) == 0  # an episode that did not succeed has no strategy
+
+
+def test_env_contract_render_and_human_position(contract):
+    task, env, (_, s0, *_) = contract
+    for cam in task.cameras or (None,):
+        img = env.render(s0, width=64, height=48, camera=cam) if cam else env.render(s0, width=64, height=48)
+        assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8 and img.max() > 0
+    assert np.asarray(env.human_position(s0)).ndim == 1
+
+
+def test_task_settings_resolve(contract):
+    """The task's own settings are a valid config, and its splits and budgets are what the data step reads."""
+    from cogail_jax.algo.config import resolve
+
+    task, env, _ = contract
+    cfg = resolve(task.name if task.name in builtin_task_names() else EXAMPLE)
+    assert cfg.task and all(task.split_size(s) > 0 for s in ("train", "validation", "test"))
+    assert task.team is None or isinstance(task.team, Team)
+
+
+# --------------------------------------------------------------------------------------------- the registry
+def test_registry_names_and_errors(tmp_path, monkeypatch):
+    assert set(builtin_task_names()) >= {"fetchq", "handover", "seqmanip"}
+    with pytest.raises(UnknownTaskError, match="unknown task 'nope'"):
+        get_task("nope")
+    with pytest.raises(UnknownTaskError, match="cannot be imported"):
+        get_task("no_such_pkg.mod:TASK")
+    (tmp_path / "my_tasks.py").write_text(
+        "from cogail_envs import Task, get_task\n"
+        "base = get_task('fetchq')\n"
+        "TASK = Task(name='fetchq_copy', env=lambda **kw: None)\n"
+        "NOT_A_TASK = 3\n")
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(UnknownTaskError, match="not a cogail_envs.Task"):
+        get_task("my_tasks:NOT_A_TASK")
+    with pytest.raises(UnknownTaskError, match="has no attribute 'MISSING'"):
+        get_task("my_tasks:MISSING")
+    task = get_task(str(tmp_path / "my_tasks.py") + ":TASK")  # a file path works too
+    assert task.name == "fetchq_copy" and get_task("fetchq_copy") is task
+    with pytest.raises(UnknownTaskError, match="registered already"):
+        cogail_envs.register_task(Task(name="fetchq_copy", env=lambda **kw: None))
+
+
+def test_a_task_without_a_team_asks_for_files():
+    from cogail_jax.algo.config import TrainConfig
+    from cogail_jax.data import io, sets
+
+    fq = get_task("fetchq")
+    cogail_envs.register_task(cogail_envs.registry.replace(fq, name="fetchq_no_team", team=None), replace=True)
+    cfg = TrainConfig(task="fetchq_no_team")
+    with pytest.raises(io.DatasetError, match="no scripted team.*--demos"):
+        sets.split_path(cfg, sets.TRAIN)
+    assert sets.robustness_paths(cfg) == {}
+
+
+# --------------------------------------------------------------------------------------------- layout rules
+def _code_tokens(path: Path):
+    """Identifiers and string literals of a module, docstrings and comments left out."""
+    src = path.read_text()
+    docstrings = set()
+    for node in ast.walk(ast.parse(src)):
+        if isinstance(node, (ast.Module, ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) and node.body:
+            first = node.body[0]
+            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) and isinstance(first.value.value, str):
+                docstrings.add(first.lineno)
+    for tok in tokenize.generate_tokens(io.StringIO(src).readline):
+        if tok.type == tokenize.NAME or (tok.type == tokenize.STRING and tok.start[0] not in docstrings):
+            yield tok
+
+
+def test_no_module_outside_a_task_package_names_a_built_in_task():
+    import re
+
+    names = builtin_task_names()
+    pattern = re.compile(r"\b(" + "|".join(names) + r")\b")
+    files = [*(ROOT / "src").rglob("*.py"), *(ROOT / "src").rglob("*.html"),
+             *(p for p in (ROOT / "envs").rglob("*.py") if p.parent.name not in names)]
+    offenders = []
+    for f in files:
+        if f.suffix == ".html":
+            offenders += [f"{f}: {m.group(0)}" for m in pattern.finditer(f.read_text())]
+            continue
+        offenders += [f"{f.relative_to(ROOT)}:{t.start[0]}: {t.string[:60]}" for t in _code_tokens(f)
+                      if pattern.search(t.string)]
+    assert not offenders, "\n".join(offenders)
+
+
+def _imports(path: Path, package: str) -> set[str]:
+    """The modules of the installed packages that ``path`` imports (absolute and relative), as dotted names."""
+    tree = ast.parse(path.read_text())
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - node.level + 1]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            out.add(mod)
+            out |= {f"{mod}.{a.name}" for a in node.names}
+    return {m for m in out if m.split(".")[0] in ("cogail_jax", "cogail_envs")}
+
+
+def test_no_import_circle():
+    modules = {}
+    for root, pkg in ((ROOT / "src" / "cogail_jax", "cogail_jax"), (ROOT / "envs", "cogail_envs")):
+        for f in root.rglob("*.py"):
+            rel = f.relative_to(root).with_suffix("")
+            parts = [pkg, *rel.parts]
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            name = ".".join(parts)
+            modules[name] = (f, name if f.name == "__init__.py" else ".".join(parts[:-1]))
+    graph = {m: {i for i in _imports(f, pkg) if i in modules and i != m} for m, (f, pkg) in modules.items()}
+    for m in list(graph):  # a module's import of its own package's __init__ is not an edge back (Python allows it)
+        graph[m] = {i for i in graph[m] if not m.startswith(i + ".")}
+    state, stack, cycles = {}, [], []
+
+    def visit(m):
+        state[m] = 1
+        stack.append(m)
+        for n in graph[m]:
+            if state.get(n) == 1:
+                cycles.append(stack[stack.index(n):] + [n])
+            elif n not in state:
+                visit(n)
+        stack.pop()
+        state[m] = 2
+
+    sys.setrecursionlimit(10_000)
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)
+    assert not cycles, "import circles:\n" + "\n".join(" -> ".join(c) for c in cycles)

@@ -79,7 +79,7 @@ def tiny_cfg(demo_files):
 FILE_WEIGHTS = {
     "test_sharding.py": 118, "test_reliability.py": 73, "test_train.py": 71, "test_cli.py": 68,
     "test_seqmanip.py": 51, "test_robustness.py": 45, "test_presets.py": 43, "test_handover.py": 42,
-    "test_portable.py": 31, "test_protocol.py": 30, "test_data.py": 25, "test_play.py": 23, "test_fetchq.py": 13,
+    "test_portable.py": 31, "test_tasks.py": 60, "test_example_task.py": 60, "test_data_step.py": 45, "test_protocol.py": 30, "test_data.py": 25, "test_play.py": 23, "test_fetchq.py": 13,
 }
 
 

@@ -29,12 +29,12 @@ def test_demos_command(tmp_path):
 
 
 @pytest.mark.parametrize("args,needle", [
-    (["train", "--run", "RUN", "--demos", "MISSING.hdf5", "--total-steps", "100"], "does not exist"),
-    (["train", "--run", "RUN", "--resume"], "cannot resume"),
+    (["train", "--task", "fetchq", "--run", "RUN", "--demos", "MISSING.hdf5", "--total-steps", "100"], "does not exist"),
+    (["train", "--task", "fetchq", "--run", "RUN", "--resume"], "cannot resume"),
     (["eval", "--run", "RUN"], "not a run directory"),
-    (["train", "--run", "RUN", "--config", "MISSING.json"], "config file"),
-    (["train", "--run", "RUN", "--set", "nope=1"], "unknown config field"),
-    (["train", "--run", "RUN", "--set", "multi_device=mesh"], "multi_device must be auto, shard_map or per_device"),
+    (["train", "--task", "fetchq", "--run", "RUN", "--config", "MISSING.json"], "config file"),
+    (["train", "--task", "fetchq", "--run", "RUN", "--set", "nope=1"], "unknown config field"),
+    (["train", "--task", "fetchq", "--run", "RUN", "--set", "multi_device=mesh"], "multi_device must be auto, shard_map or per_device"),
 ])
 def test_user_errors_are_one_clear_line(args, needle, tmp_path):
     args = [a.replace("RUN", str(tmp_path / "run")).replace("MISSING", str(tmp_path / "missing")) for a in args]
@@ -152,7 +152,7 @@ def test_brax_shim_places_like_pmap_so_the_epoch_compiles_once():
 @pytest.mark.parametrize("text,value", [("false", False), ("False", False), ("0", False), ("no", False),
                                         ("off", False), ("true", True), ("1", True), ("yes", True)])
 def test_set_parses_booleans(text, value):
-    a = cli.build_parser().parse_args(["train", "--run", "x", "--set", f"disc_instance_noise={text}",
+    a = cli.build_parser().parse_args(["train", "--task", "fetchq", "--run", "x", "--set", f"disc_instance_noise={text}",
                                        "--set", "reward_norm=" + text])
     cfg = cli._config_from_args(a)
     assert cfg.disc_instance_noise is value and cfg.reward_norm is value
@@ -161,7 +161,7 @@ def test_set_parses_booleans(text, value):
 def test_set_parses_numbers_seeds_and_optional_files():
     from cogail_jax.algo.config import ConfigError
 
-    a = cli.build_parser().parse_args(["train", "--run", "x", "--set", "total_steps=1e6", "--set", "lr=2e-4",
+    a = cli.build_parser().parse_args(["train", "--task", "fetchq", "--run", "x", "--set", "total_steps=1e6", "--set", "lr=2e-4",
                                        "--set", "seeds=1,2", "--set", "validation=v.hdf5", "--set", "heldout=none"])
     cfg = cli._config_from_args(a)
     assert (cfg.total_steps, cfg.lr, cfg.seeds, cfg.validation, cfg.heldout) == (1_000_000, 2e-4, (1, 2), "v.hdf5",
@@ -169,7 +169,7 @@ def test_set_parses_numbers_seeds_and_optional_files():
     for bad, needle in (("reward_norm=maybe", "true or false"), ("num_envs=2.5", "an integer"),
                         ("lr=fast", "a number"), ("nope=1", "unknown config field")):
         with pytest.raises(ConfigError, match=needle):
-            cli._config_from_args(cli.build_parser().parse_args(["train", "--run", "x", "--set", bad]))
+            cli._config_from_args(cli.build_parser().parse_args(["train", "--task", "fetchq", "--run", "x", "--set", bad]))
 
 
 @pytest.mark.parametrize("extra,want", [([], True), (["--nondeterministic"], False)])
@@ -194,7 +194,7 @@ def test_the_cli_makes_gpu_execution_deterministic_by_default(extra, want, tmp_p
 
 
 def test_the_installed_command_sets_the_flag_before_jax_starts():
-    code = ("import os, sys; from cogail_jax import cli; cli.main(sys.argv[1:]); "
+    code = ("import os, sys; from cogail_jax.apps import cli; cli.main(sys.argv[1:]); "
             "import jax; print('FLAGS', os.environ.get('XLA_FLAGS'), jax.devices()[0].platform)")
     r = subprocess.run([sys.executable, "-c", code, "report", "--run", "/nonexistent"], capture_output=True,
                        text=True, timeout=120, env={**__import__("os").environ, "XLA_FLAGS": ""})

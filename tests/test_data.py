@@ -97,7 +97,7 @@ def test_default_demos_of_another_size_get_their_own_file(fetchq, tmp_path, monk
     s = runs.build(TrainConfig(task="fetchq", num_demos=7), need_heldout=False)  # the trainer asks for them
     assert int(s.expert["demo"].max()) + 1 == 7
     with pytest.raises(ConfigError, match="num_demos"):
-        TrainConfig(num_demos=-1).validate()
+        TrainConfig(task="fetchq", num_demos=-1).validate()
 
 
 def test_ten_thousand_demos_one_call(fetchq):

@@ -78,7 +78,7 @@ def test_import_robomimic_style_with_keys_on_the_command_line(tmp_path, capsys, 
     m = json.loads(MAP.read_text())
     keys = [f"--key={k}={v}" for k, v in m.items() if not k.startswith("_")]
     out = tmp_path / "robo2.hdf5"
-    rc, _, err = _cli(capsys, "import", "--in", ROBO, "--out", out, *keys)
+    rc, _, err = _cli(capsys, "import", "--task", "fetchq", "--in", ROBO, "--out", out, *keys)
     assert rc == 0, err
     _check_robo(out, fetchq)
 
@@ -173,7 +173,7 @@ def test_import_errors_are_one_clear_line(case, tmp_path, capsys):
     src = make(tmp_path)
     extra = [str(tmp_path / "m.json") if a == "MAPJSON" else a for a in extra]
     out = tmp_path / "out.hdf5"
-    rc, _, err = _cli(capsys, "import", "--in", src, "--out", out, *extra)
+    rc, _, err = _cli(capsys, "import", "--task", "fetchq", "--in", src, "--out", out, *extra)
     assert rc == 2, err
     lines = err.strip().splitlines()
     assert len(lines) == 1, err

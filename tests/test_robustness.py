@@ -219,9 +219,9 @@ def test_varied_training_set_adds_validated_varied_humans_to_the_team(fetchq, fq
     with pytest.raises(ValueError, match="following mode"):
         rb.generate_varied(fetchq, "change_of_mind", 1, following_partner=True)
     with pytest.raises(ConfigError, match="train_varied"):
-        TrainConfig(train_varied=-1).validate()
+        TrainConfig(task="fetchq", train_varied=-1).validate()
     with pytest.raises(ConfigError, match="--demos"):
-        TrainConfig(train_varied=2, demos="mine.hdf5").validate()
+        TrainConfig(task="fetchq", train_varied=2, demos="mine.hdf5").validate()
 
 
 @pytest.mark.skipif(not os.environ.get("COGAIL_SLOW_TESTS"),

@@ -159,6 +159,12 @@ class TrainConfig:
             from cogail_envs import task_names
 
             raise ConfigError(f"no task given: pass --task, one of {', '.join(task_names())} or my_pkg.my_module:TASK")
+        from cogail_envs import UnknownTaskError, get_task
+
+        try:
+            get_task(self.task)
+        except UnknownTaskError as e:
+            raise ConfigError(str(e))
         if self.method not in METHODS:
             raise ConfigError(f"unknown method {self.method!r}: choose one of {', '.join(METHODS)}")
         if not self.seeds:
@@ -234,7 +240,8 @@ def task_default(task: str, name: str, default):
 
 def resolve(task: str, budget: str = "paper", fields: dict | None = None) -> TrainConfig:
     """A run's config: the field defaults, updated with ``task``'s settings under ``budget`` (its
-    ``default_config()`` and ``budgets[budget]``), then with ``fields`` (a JSON file's, the command line's)."""
+    ``default_config()`` and ``budgets[budget]``), then with ``fields`` (a JSON file's, the command line's). With
+    your own training file (``demos``) the task's ``train_varied`` does not apply unless ``fields`` sets it."""
     from cogail_envs import UnknownTaskError, get_task
 
     fields = dict(fields or {})
@@ -245,6 +252,8 @@ def resolve(task: str, budget: str = "paper", fields: dict | None = None) -> Tra
         own = get_task(task).config(budget)
     except UnknownTaskError as e:
         raise ConfigError(str(e))
+    if fields.get("demos") and "train_varied" not in fields:  # your training file: the task's varied humans are
+        own.pop("train_varied", None)                         # added to its own training set, not to yours
     return TrainConfig.from_dict({**own, **fields, "task": task}).validate()
 
 

@@ -307,7 +307,13 @@ def _config_from_args(a) -> "TrainConfig":  # noqa: F821
             raise ConfigError(f"--set needs FIELD=VALUE, got {item!r}")
         k, v = item.split("=", 1)
         fields[k] = parse_field(k.strip(), v)
-    return resolve(fields.pop("task", None) or "", a.budget, fields)
+    task = fields.pop("task", None) or ""
+    saved = Path(a.run) / "config.json" if getattr(a, "resume", False) and getattr(a, "run", None) else None
+    if not task and saved is not None and saved.exists():  # `cogail train --run R --resume`: the run's own task
+        saved_cfg = json.loads(saved.read_text())
+        task = saved_cfg.get("task", "")
+        fields.setdefault("method", saved_cfg.get("method"))
+    return resolve(task, a.budget, fields)
 
 
 def main(argv=None) -> int:

@@ -65,3 +65,15 @@ def test_the_example_task_plays_and_renders_its_run(example_run, tmp_path, monke
     out = tmp_path / "table.gif"
     assert cli.main(["video", "--run", str(example_run), "--num", "2", "--steps", "6", "--out", str(out)]) == 0
     assert out.stat().st_size > 0
+
+
+def test_the_example_task_makes_and_imports_demonstrations(tmp_path, monkeypatch, capsys):
+    from cogail_jax.apps import cli
+
+    monkeypatch.chdir(ROOT)
+    demos = tmp_path / "table.hdf5"
+    assert cli.main(["demos", "--task", TASK, "--num", "6", "--out", str(demos)]) == 0
+    assert "wrote 6 table_carry demonstrations" in capsys.readouterr().out
+    assert cli.main(["import", "--task", TASK, "--in", str(demos), "--out", str(tmp_path / "mine.hdf5")]) == 0
+    assert cli.main(["import", "--task", "fetchq", "--in", str(demos), "--out", str(tmp_path / "x.hdf5")]) == 2
+    assert "not 'fetchq'" in capsys.readouterr().err

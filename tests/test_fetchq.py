@@ -107,11 +107,4 @@ def test_reset_does_not_reveal_strategy(fetchq):
         assert np.allclose(m[:4], first.mean(0)[:4], atol=0.03)
 
 
-def test_classifier_none_on_failure(fetchq):
-    s = fetchq.reset(jax.random.PRNGKey(0))
-    assert int(fetchq.classify_strategy(s.metrics)) == 0
 
-
-def test_render_frame(fetchq):
-    frame = fetchq.render(fetchq.reset(jax.random.PRNGKey(0)))
-    assert frame.shape == (256, 256, 3) and frame.dtype == np.uint8 and frame.std() > 10

@@ -28,8 +28,8 @@ def run_dir(tiny_cfg, tmp_path_factory):
     run = d / "run"
     train_loop.train_run(tiny_cfg.replace(seeds=(3,), **{k: str(v) for k, v in files.items()}), run, progress=False,
                          stop_after=0)
-    for f in files.values():
-        f.unlink()
+    for f in files.values():  # set aside (the evaluation below puts them back)
+        f.rename(f.with_suffix(".away"))
     return run
 
 
@@ -147,7 +147,10 @@ def test_eval_replays_the_trials(server, run_dir, capsys):
             url + p, json.dumps(b).encode(), {"Content-Type": "application/json"})).read()
         post("api/step", {"keys": ["KeyD"], "start": True})
         post("api/end", {})
-    assert cli.main(["eval", "--run", str(run_dir), "--replay-file", str(trials), "--no-progress"]) == 0
+    for f in run_dir.parent.glob("*.away"):  # evaluation needs the run's test and validation splits
+        f.rename(f.with_suffix(".hdf5"))
+    assert cli.main(["eval", "--run", str(run_dir), "--replay-file", str(trials), "--no-progress",
+                     "--no-robustness"]) == 0
     res = json.loads((run_dir / "replay-trials" / "results.json").read_text())
     assert set(res["replay_success"]["per_seed"]) == {"3"}
     assert "replay against" in capsys.readouterr().out

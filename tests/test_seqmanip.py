@@ -76,20 +76,6 @@ def rollout(env):
     return jax.device_get(out)
 
 
-def test_reset_step_shapes(env, jitted):
-    reset_from, step = jitted
-    s = reset_from(env.sample_init(jax.random.PRNGKey(0)))
-    assert env.action_size == 14 and env.human_action_size == env.robot_action_size == 7
-    assert env.max_episode_steps == 600 and env.strategy_names == ("human-hands-over", "robot-opens")
-    assert s.obs.shape == (env.observation_size,) == (43,) and s.obs.dtype == jnp.float32
-    assert set(s.metrics) >= {"success", "opened_by", "placed_by", "closed_by", "handover"}
-    assert float(s.obs[38]) == 0.0  # drawer opening (fraction of its travel): closed at reset
-    s2 = step(s, jnp.zeros(env.action_size).at[0].set(5.0))  # clipped to 1 cm
-    assert s2.obs.shape == s.obs.shape and s2.reward.shape == () and s2.done.shape == ()
-    assert int(s2.info["t"]) == 1 and float(s2.done) == 0.0
-    moved = float(s2.pipeline_state.ctrl[0] - s.pipeline_state.ctrl[0])
-    assert abs(moved - mc.POS_SCALE) < 1e-6
-    assert np.all(np.isfinite(np.asarray(s2.obs)))
 
 
 def test_reset_from_reproduces_the_start(env, jitted, rollout):
@@ -164,23 +150,8 @@ def test_classify_strategy(env):
     np.testing.assert_array_equal(np.asarray(env.classify_strategy(m)), [1, 2, 0, 0, 0])
 
 
-def test_render(env, jitted):
-    img = env.render(jitted[0](env.sample_init(jax.random.PRNGKey(0))), width=64, height=48)
-    assert img.shape == (48, 64, 3) and img.dtype == np.uint8 and img.max() > 0
 
 
-def test_time_limit_is_a_truncation(env, jitted):
-    """``info["truncation"]`` is 1 when the time limit ended the episode (the trainer bootstraps it with the
-    critic), 0 before."""
-    reset_from, step = jitted
-    state = reset_from(env.sample_init(jax.random.PRNGKey(4)))
-    a = jnp.zeros(env.action_size)
-    nxt = step(state, a)
-    assert float(state.info["truncation"]) == 0.0
-    assert float(nxt.done) == 0.0 and float(nxt.info["truncation"]) == 0.0
-    late = step(state.replace(info={**state.info, "t": state.info["t"] + env.max_episode_steps - 1}), a)
-    assert int(late.info["t"]) == env.max_episode_steps
-    assert float(late.done) == 1.0 and float(late.info["truncation"]) == 1.0
 
 
 def test_a_patient_human_holds_on_at_a_handover_only(rollout, env):

@@ -472,7 +472,9 @@ def _write_eval_outputs(out_dir: Path, s: Setup, res: dict, at: dict, lat, sets:
     protocol.save_results(out_dir, res)
     _save_extra_sets(out_dir, res, sets)
     protocol.write_figures(out_dir, res, lat, np.asarray(s.heldout["strategy"]), s.env.strategy_names)
-    if robustness:
+    from ..data.varied import PREFIX as ROBUST
+
+    if robustness and any(name.startswith(ROBUST) for name in res.get("extra_sets") or {}):  # the task has them
         from ..eval import robustness as rfig
 
         rfig.robustness_figure(res, out_dir / "robustness.png", title=f"{cfg.method} on {cfg.task}: varied humans")

@@ -159,10 +159,14 @@ def _import_module(ref: str, module: str):
         path = Path(module)
         if not path.exists():
             raise UnknownTaskError(f"task {ref!r}: file {path} does not exist: pass an existing file or module")
+        package = path.is_dir() or path.name == "__init__.py"  # a package: its relative imports must work
+        if path.is_dir():
+            path = path / "__init__.py"
         name = f"cogail_user_task_{abs(hash(str(path.resolve())))}"
         if name in sys.modules:
             return sys.modules[name]
-        spec = importlib.util.spec_from_file_location(name, path)
+        spec = importlib.util.spec_from_file_location(
+            name, path, submodule_search_locations=[str(path.parent)] if package else None)
         mod = importlib.util.module_from_spec(spec)
         sys.modules[name] = mod
         spec.loader.exec_module(mod)

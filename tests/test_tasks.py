@@ -19,45 +19,37 @@ from cogail_envs import Task, Team, UnknownTaskError, builtin_task_names, get_ta
 ROOT = Path(__file__).parents[1]
 EXAMPLE = "examples.table_carry:TASK"
 TASKS = [*builtin_task_names(), *([EXAMPLE] if (ROOT / "examples" / "table_carry").exists() else [])]
-LIMIT = 3  # a time limit short enough to reach in a test
 
 
 @pytest.fixture(scope="module", params=TASKS)
 def contract(request):
-    """One task's env at a short time limit, and one compiled program: reset from a sampled init twice (reset_from
-    reproduces it), LIMIT steps of a fixed action, and classify_strategy of the last metrics."""
+    """One task's env and its two programs, ``jax.jit(env.reset_from)`` and ``jax.jit(env.step)`` (the same
+    programs as the task's own tests compile: found in the suite's compilation cache): reset from a sampled init
+    twice (reset_from reproduces it), one step of zero action, and one from a state one step before the limit."""
     monkey = pytest.MonkeyPatch()
     monkey.chdir(ROOT)  # examples/ importable as from the repository root
     task = get_task(request.param)
-    env = task.make_env(max_episode_steps=LIMIT)
-
-    @jax.jit
-    def run(key):
-        init = env.sample_init(key)
-        s0, s0b = env.reset_from(init), env.reset_from(init)
-        a = jnp.zeros(env.action_size)
-
-        def body(s, _):
-            n = env.step(s, a)
-            return n, (n.obs, n.done, n.info["truncation"], n.info["t"], n.metrics["success"])
-
-        last, trace = jax.lax.scan(body, s0, None, length=LIMIT)
-        return init, s0, s0b, last, trace, env.classify_strategy(last.metrics)
-
-    out = jax.device_get(run(jax.random.PRNGKey(0)))
+    env = task.make_env()
+    reset_from, step = jax.jit(env.reset_from), jax.jit(env.step)
+    init = env.sample_init(jax.random.PRNGKey(0))
+    s0, s0b = reset_from(init), reset_from(init)
+    a = jnp.zeros(env.action_size)
+    s1 = step(s0, a)
+    late = step(s0.replace(info={**s0.info, "t": s0.info["t"] + env.max_episode_steps - 1}), a)
+    out = jax.device_get((init, s0, s0b, s1, late, jax.jit(env.classify_strategy)(s1.metrics)))
     yield task, env, out
     monkey.undo()
 
 
 def test_env_contract_shapes_and_action_split(contract):
-    task, env, (init, s0, _, last, trace, _) = contract
+    task, env, (init, s0, _, s1, _, _) = contract
     assert env.name == task.name and env.action_size == env.human_action_size + env.robot_action_size
     assert env.human_action_size > 0 and env.robot_action_size > 0 and env.num_strategies == len(env.strategy_names)
     assert s0.obs.shape == (env.observation_size,) and s0.obs.dtype == np.float32 and np.all(np.isfinite(s0.obs))
     assert init.shape == (env.init_size,)
-    assert trace[0].shape == (LIMIT, env.observation_size) and np.all(np.isfinite(trace[0]))
+    assert s1.obs.shape == s0.obs.shape and np.all(np.isfinite(s1.obs)) and np.shape(s1.reward) == ()
     assert "success" in s0.metrics and "t" in s0.info and "truncation" in s0.info
-    assert jax.tree.structure(s0) == jax.tree.structure(last)  # step keeps reset's state layout (scan needs it)
+    assert jax.tree.structure(s0) == jax.tree.structure(s1)  # step keeps reset's state layout (a scan needs it)
     a = np.arange(env.action_size, dtype=np.float32)
     h, r = env.split_action(a)
     assert h.shape == (env.human_action_size,) and r.shape == (env.robot_action_size,)
@@ -70,19 +62,17 @@ def test_env_contract_reset_from_reproduces_the_start(contract):
 
 
 def test_env_contract_time_limit_is_a_truncation(contract):
-    _, env, (_, _, _, _, (obs, done, trunc, t, success), _) = contract
-    np.testing.assert_array_equal(t, np.arange(1, LIMIT + 1))
-    assert env.max_episode_steps == LIMIT
-    if success.max() == 0:  # standing still never succeeds: the limit ends the episode, as a truncation
-        np.testing.assert_array_equal(done, [0.0] * (LIMIT - 1) + [1.0])
-        np.testing.assert_array_equal(trunc, [0.0] * (LIMIT - 1) + [1.0])
+    """``info["truncation"]`` is 1 when the time limit (not success or failure) ended the episode, 0 before."""
+    _, env, (_, s0, _, s1, late, _) = contract
+    assert int(s1.info["t"]) == 1 and float(s1.done) == 0.0 and float(s1.info["truncation"]) == 0.0
+    assert int(late.info["t"]) == env.max_episode_steps
+    assert float(late.done) == 1.0 and float(late.info["truncation"]) == 1.0 - float(late.metrics["success"])
 
 
 def test_env_contract_strategy_classification(contract):
-    task, env, (*_, last, trace, sid) = contract
+    *_, (_, _, _, s1, _, sid) = contract
     assert np.asarray(sid).dtype == np.int32 and np.shape(sid) == ()
-    if trace[4].max() == 0:
-        assert int(sid) == 0  # an episode that did not succeed has no strategy
+    assert float(s1.metrics["success"]) == 0.0 and int(sid) == 0  # an episode that has not succeeded: no strategy
 
 
 def test_env_contract_render_and_human_position(contract):
@@ -94,7 +84,7 @@ def test_env_contract_render_and_human_position(contract):
 
 
 def test_task_settings_resolve(contract):
-    """The task's own settings are a valid config, and its splits and budgets are what the data step reads."""
+    """The task's own settings are a valid config, and its splits are what the data step reads."""
     from cogail_jax.algo.config import resolve
 
     task, env, _ = contract
@@ -121,9 +111,25 @@ def test_registry_names_and_errors(tmp_path, monkeypatch):
     with pytest.raises(UnknownTaskError, match="has no attribute 'MISSING'"):
         get_task("my_tasks:MISSING")
     task = get_task(str(tmp_path / "my_tasks.py") + ":TASK")  # a file path works too
+    assert get_task(str(ROOT / "examples" / "table_carry") + ":TASK").name == "table_carry"  # and a package's folder
     assert task.name == "fetchq_copy" and get_task("fetchq_copy") is task
     with pytest.raises(UnknownTaskError, match="registered already"):
         cogail_envs.register_task(Task(name="fetchq_copy", env=lambda **kw: None))
+
+
+def test_a_task_from_an_entry_point(tmp_path, monkeypatch):
+    """An installed distribution declares its tasks in the `cogail.tasks` entry-point group."""
+    (tmp_path / "ep_tasks_mod.py").write_text(
+        "from cogail_envs import Task, get_task\n"
+        "def make():\n"
+        "    return Task(name='ep_task', env=get_task('fetchq').env)\n")
+    dist = tmp_path / "ep_tasks-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: ep-tasks\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[cogail.tasks]\nep_task = ep_tasks_mod:make\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert "ep_task" in cogail_envs.task_names()
+    assert get_task("ep_task").name == "ep_task"
 
 
 def test_a_task_without_a_team_asks_for_files():

@@ -118,6 +118,13 @@ def main(task: str, sizes=(64, 1024, 8192), out: str | None = None, env_only: bo
     from ..algo.config import TrainConfig
 
     env = cogail_envs.make_env(task)
+    if train_rows and not env_only:  # the demonstrations feed the discriminator and the BC terms (the peer needs
+        from ..data import sets       # none): found first, made by `cogail data --task T`
+
+        base = TrainConfig(task=task)
+        demos = data.load_demos(sets.split_path(base, sets.TRAIN, env=env), env)
+        expert = train.expert_arrays(demos, base.history)
+        norm = train.fit_normalizer(expert, base.obs_std_floor)
     rows = []
     for n in sizes:
         r = env_throughput(env, n, steps=steps)
@@ -127,13 +134,6 @@ def main(task: str, sizes=(64, 1024, 8192), out: str | None = None, env_only: bo
     if env_only:
         _table(rows, out)
         return rows
-    if train_rows:  # the demonstrations feed the discriminator and the BC terms; the peer needs none
-        from ..data import sets
-
-        base = TrainConfig(task=task)
-        demos = data.load_demos(sets.split_path(base, sets.TRAIN, env=env), env)  # made by `cogail data --task T`
-        expert = train.expert_arrays(demos, base.history)
-        norm = train.fit_normalizer(expert, base.obs_std_floor)
     for n in sizes:
         for seeds in ((300,), (300, 400, 500)) if train_rows else ():
             cfg = base.replace(num_envs=n, seeds=seeds, unroll_length=unroll, updates_per_call=min(5, calls + 1),

@@ -374,7 +374,7 @@ def _dispatch(a) -> int:
         import numpy as np
 
         counts = np.bincount(eps.strategy, minlength=env.num_strategies + 1)[1:]
-        print(f"wrote {a.num} {a.task} demonstrations to {path} in {dt:.1f} s: success {eps.success.mean():.3f}, "
+        print(f"wrote {a.num} {env.name} demonstrations to {path} in {dt:.1f} s: success {eps.success.mean():.3f}, "
               f"mean length {eps.length.mean():.1f}, strategies {counts.tolist()}")
         return 0
     if a.command == "data":

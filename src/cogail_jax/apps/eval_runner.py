@@ -4,14 +4,10 @@ from __future__ import annotations
 
 import functools
 import json
-import math
-import os
-import platform
-import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import jax
@@ -25,7 +21,6 @@ from ..data import sets as data_sets
 from ..eval import rollouts
 from ..eval import protocol
 from ..runtime import tblog, timing
-from ..algo import train
 from ..algo.config import ConfigError, TrainConfig
 from .runs import RunError, Setup, _eval_tree, build, eval_params, total_updates
 

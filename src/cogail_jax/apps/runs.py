@@ -2,29 +2,24 @@
 training loop (:mod:`.train_loop`) and the evaluation loop (:mod:`.eval_runner`)."""
 from __future__ import annotations
 
-import functools
 import json
 import math
 import os
 import platform
 import subprocess
 import sys
-import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import jax
-import numpy as np
 
 from ..runtime import checkpoint as ckpt
 from ..data import io as data
 from ..data import manifest, sets
 from ..eval import rollouts
-from ..eval import protocol
-from ..runtime import tblog, timing
 from ..algo import train
-from ..algo.config import ConfigError, TrainConfig
+from ..algo.config import TrainConfig
 
 
 class RunError(RuntimeError):

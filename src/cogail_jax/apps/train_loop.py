@@ -2,12 +2,6 @@
 checkpoint in the background. Everything on the device is :mod:`cogail_jax.algo.train`."""
 from __future__ import annotations
 
-import functools
-import json
-import math
-import os
-import platform
-import subprocess
 import sys
 import threading
 import time
@@ -18,13 +12,9 @@ import jax
 import numpy as np
 
 from ..runtime import checkpoint as ckpt
-from ..data import io as data
 from ..data import manifest
-from ..eval import rollouts
-from ..eval import protocol
-from ..runtime import tblog, timing
-from ..algo import train
-from ..algo.config import ConfigError, TrainConfig
+from ..runtime import timing
+from ..algo.config import TrainConfig
 from .runs import RunError, Setup, build, eval_params, prepare_run_dir, total_updates
 
 

@@ -165,11 +165,11 @@ def _import_module(ref: str, module: str):
         name = f"cogail_user_task_{abs(hash(str(path.resolve())))}"
         if name in sys.modules:
             return sys.modules[name]
-        spec = importlib.util.spec_from_file_location(
+        found = importlib.util.spec_from_file_location(
             name, path, submodule_search_locations=[str(path.parent)] if package else None)
-        mod = importlib.util.module_from_spec(spec)
+        mod = importlib.util.module_from_spec(found)
         sys.modules[name] = mod
-        spec.loader.exec_module(mod)
+        found.loader.exec_module(mod)
         return mod
     if os.getcwd() not in sys.path and "" not in sys.path:
         sys.path.append(os.getcwd())  # as `python -m` does: a package in the current directory is importable

@@ -10,11 +10,12 @@ BUDGET ?= paper
 RUN ?= runs/$(TASK)-$(METHOD)-$(BUDGET)
 EXTRA ?=
 
-.PHONY: install browser train eval test demos video bench clean help paper
+.PHONY: install browser train eval test demos video bench first-run clean help paper
 
 help:
 	@echo "make train [TASK=fetchq|handover|seqmanip] [METHOD=cogail|ma_infogail|ma_gail] [SEEDS=300,400,500] [BUDGET=paper|quick|2x] [RUN=dir]"
 	@echo "make eval RUN=dir | make test | make demos TASK=... (the run's datasets) | make video RUN=dir | make bench"
+	@echo "make first-run [TASKS=fetchq,handover,seqmanip] (cold, warm and new-config make train, timed)"
 	@echo "make paper [TASKS=fetchq,handover,seqmanip] [METHODS=...] | make install [CPU=1] [DRY_RUN=1]"
 
 $(BIN)/.installed: pyproject.toml
@@ -86,3 +87,9 @@ bench: install
 	$(BIN)/cogail bench $(TASK) runs/bench-$(TASK).json
 	@runs=$$(ls runs/*/speed.json 2>/dev/null | xargs -r -n1 dirname); \
 	if [ -n "$$runs" ]; then $(BIN)/cogail bench --phases $$runs; fi
+
+# What a first `make train` costs, per task in TASKS: cold (fresh compilation cache and data folder), warm, and a
+# new config with the datasets on disk; wall times, phases, compilations and run-folder sizes in
+# runs/first-run/first_run.md (experiments/first_run.py).
+first-run: install
+	$(BIN)/python experiments/first_run.py --tasks $(TASKS) --seeds $(SEEDS) --out runs/first-run

@@ -47,7 +47,7 @@ def cfg(tiny_cfg):
 
 @pytest.fixture(scope="module")
 def two_dev_run(cfg, tmp_path_factory):
-    """Trained to update 2 on 2 devices; ``truth``: checkpoint 2 as Orbax restores it onto the layout that saved
+    """Trained to update 2 on 2 devices, every training state kept; ``truth``: checkpoint 2 as Orbax restores it onto the layout that saved
     it (its stored shardings)."""
     d = tmp_path_factory.mktemp("portable")
     run, truth = d / "run", d / "truth2.npz"
@@ -57,7 +57,7 @@ def two_dev_run(cfg, tmp_path_factory):
         from cogail_jax.apps import eval_runner, runs, train_loop
         from cogail_jax.algo.config import TrainConfig
         cfg = TrainConfig.from_dict(json.loads({cfg.to_json()!r}))
-        train_loop.train_run(cfg, {str(run)!r}, progress=False, devices=2, stop_after=2)
+        train_loop.train_run(cfg, {str(run)!r}, progress=False, devices=2, stop_after=2, keep_full=None)
         s = runs.build(cfg, need_heldout=False)
         ab = ckpt._abstract_for_disk(jax.eval_shape(lambda: s.init(cfg.seeds, s.expert)))
         raw = ckpt.manager({str(run)!r}).restore(2, args=ocp.args.StandardRestore(ab))
@@ -93,7 +93,9 @@ def test_two_devices_to_one_eval_and_resume(cfg, two_dev_run, resumed_on_one):
     assert "restored 2 seeds saved on 2 devices (cpu) onto 1 device (cpu)" in out
     assert not (run / "corrupt_checkpoints").exists()  # a layout mismatch is never corruption
     mgr = ckpt.manager(run)
-    assert ckpt.steps(mgr) == [0, 2, 4] and ckpt.saved_layout(mgr, 4)["device_count"] == 1
+    # the newest training state is kept (resume needs no other); the policies of every checkpoint, of both layouts
+    assert ckpt.steps(mgr) == [4] and ckpt.saved_layout(mgr, 4)["device_count"] == 1
+    assert ckpt.steps(ckpt.policy_manager(run)) == [0, 2, 4]
     info = json.loads((run / "run_info.json").read_text())
     assert info["layout"]["device_count"] == 1
     assert [(x["from_update"], x["device_count"]) for x in info["layouts"]] == [(0, 2), (2, 1)]
@@ -112,9 +114,10 @@ def test_one_device_to_two(cfg, resumed_on_one, tmp_path):
         from cogail_jax.apps import eval_runner, runs, train_loop
         from cogail_jax.algo.config import TrainConfig
         run = {str(run)!r}
-        assert cli.main(["train", "--run", run, "--resume", "--devices", "2", "--no-progress"]) == 0
+        assert cli.main(["train", "--run", run, "--resume", "--devices", "2", "--no-progress", "--keep-full",
+                         "all"]) == 0
         mgr = ckpt.manager(run)
-        assert ckpt.steps(mgr) == [0, 2, 4, 6], ckpt.steps(mgr)
+        assert ckpt.steps(mgr) == [4, 6], ckpt.steps(mgr)
         assert ckpt.saved_layout(mgr, 6)["device_count"] == 2
         cfg = TrainConfig.load(run + "/config.json")
         s = runs.build(cfg, need_heldout=False)
@@ -159,10 +162,22 @@ def test_eval_without_restorable_checkpoint_says_why(cfg, two_dev_run, tmp_path,
     with pytest.raises(ckpt.CheckpointMismatch):
         train_loop.train_run(cfg.replace(history=2), run, resume=True, progress=False, stop_after=0)
     assert not (run / "corrupt_checkpoints").exists()
-    # damaged files
+    # damaged files (evaluation reads the policies)
     (run / "config.json").write_text(json.dumps(c))
-    _damage(run / "checkpoints" / "2", "truncate")
+    _damage(run / "policies" / "2", "truncate")
     assert cli.main(["eval", "--run", str(run), "--no-progress", "--no-robustness"]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and err.strip().splitlines()[-1].startswith("cogail eval: error: "), err
     assert f"no checkpoint of {run} can be restored: checkpoint 2 is damaged" in err
+
+
+def test_run_without_policies_is_evaluated_from_its_training_states(cfg, two_dev_run, tmp_path):
+    """A run trained before policies were kept apart (no RUN/policies/): evaluation, play and video read its full
+    training states instead, with the same figures."""
+    run = _copy(two_dev_run[0], tmp_path / "run")
+    res = eval_runner.eval_run(run, progress=False)
+    shutil.rmtree(run / "policies")
+    old = eval_runner.eval_run(run, progress=False)
+    assert res["checkpoints"] == old["checkpoints"] == [2]
+    for key in ("replay_success", "validation_replay_success", "interpolation_success"):
+        assert old["curves"][key] == res["curves"][key], key

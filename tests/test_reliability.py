@@ -96,13 +96,13 @@ def test_kill_9_then_resume_matches_uninterrupted(kill_cfg, reference, tmp_path)
 
 
 def test_corrupt_latest_checkpoint_is_skipped(kill_cfg, reference, tmp_path, capsys):
-    run = tmp_path / "run"
-    train_loop.train_run(kill_cfg, run, progress=False, stop_after=6)
+    run = tmp_path / "run"  # every training state kept (--keep-full all): a damaged newest one has a predecessor
+    train_loop.train_run(kill_cfg, run, progress=False, stop_after=6, keep_full=None)
     latest = Path(run) / "checkpoints" / "6"
     for f in latest.rglob("*"):
         if f.is_file() and f.stat().st_size > 0:
             f.write_bytes(b"\0garbage" * 3)
-    train_loop.train_run(kill_cfg, run, resume=True, progress=False)
+    train_loop.train_run(kill_cfg, run, resume=True, progress=False, keep_full=None)
     out = capsys.readouterr().out
     assert "checkpoint 6" in out and "unreadable" in out and "resuming" in out
     assert any((Path(run) / "corrupt_checkpoints").iterdir())  # moved aside, not deleted

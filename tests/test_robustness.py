@@ -16,7 +16,7 @@ from cogail_jax.data import varied as rb
 from cogail_jax.eval import robustness as rfig
 from cogail_jax.data.io import load_demos
 
-NUM, BATCH = 16, 24  # fetchq episodes per variation; one batch size, so one compilation per program
+NUM = 16  # fetchq episodes per variation (every set made by the task's one generator program)
 
 
 @contextlib.contextmanager
@@ -35,12 +35,12 @@ def _data_dir(path):
 @pytest.fixture(scope="module")
 def fq_sets(fetchq, tmp_path_factory):
     with _data_dir(tmp_path_factory.mktemp("robust")):
-        return rb.ensure_robustness_sets(fetchq, num=NUM, batch=BATCH, verbose=False)
+        return rb.ensure_robustness_sets(fetchq, num=NUM, verbose=False)
 
 
 @pytest.fixture(scope="module")
 def fq_twins(fetchq, fq_sets):
-    return {v: rb.twin_episodes(fetchq, fq_sets[rb.PREFIX + v], BATCH) for v in rb.VARIATIONS}
+    return {v: rb.twin_episodes(fetchq, fq_sets[rb.PREFIX + v]) for v in rb.VARIATIONS}
 
 
 def _human(fetchq, path):
@@ -60,7 +60,7 @@ def test_files_follow_the_schema_and_validate_by_resimulation(fetchq, fq_sets):
             seeds.add(int(f.attrs["seed"]))
         d = load_demos(path, fetchq, require_init=True)
         # an independent open-loop re-simulation of both agents' recorded actions
-        r = rb.validate_episodes(fetchq, d.init, d.actions_human, d.actions_robot, BATCH)
+        r = rb.validate_episodes(fetchq, d.init, d.actions_human, d.actions_robot)
         assert np.all(r["success"] > 0) and np.array_equal(r["executed"], d.strategy)
         assert np.array_equal(r["length"], d.length)
     assert len(seeds) == 6 and not seeds & {0, 1, 2}  # generator seeds distinct from train / test / validation
@@ -70,7 +70,7 @@ def test_cached_sets_are_reused(fetchq, fq_sets):
     path = fq_sets[rb.PREFIX + "slow"]
     mtime = path.stat().st_mtime_ns
     with _data_dir(path.parent):
-        again = rb.ensure_robustness_sets(fetchq, num=NUM, batch=BATCH, variations=("slow",), verbose=False)
+        again = rb.ensure_robustness_sets(fetchq, num=NUM, variations=("slow",), verbose=False)
     assert again[rb.PREFIX + "slow"] == path and path.stat().st_mtime_ns == mtime
 
 
@@ -147,7 +147,7 @@ def test_change_of_mind_heads_elsewhere_first(fetchq, fq_sets, fq_twins):
 def test_blind_robot_parts_ways_with_the_human_follower(fetchq, fq_sets):
     """The team's robot follows the human and succeeds on every varied episode (by construction); the recorded
     robot of the unvaried twin, replayed blind, drops under variation compared with an in-distribution human."""
-    res = {v: rb.blind_robot_success(fetchq, fq_sets[rb.PREFIX + v], BATCH) for v in rb.VARIATIONS}
+    res = {v: rb.blind_robot_success(fetchq, fq_sets[rb.PREFIX + v]) for v in rb.VARIATIONS}
     for v in ("slow", "pauses", "change_of_mind"):
         assert res[v]["varied"] < res[v]["in_distribution"] - 0.15, (v, res[v])
     assert np.mean([r["varied"] for r in res.values()]) < np.mean([r["in_distribution"] for r in res.values()])
@@ -182,7 +182,7 @@ def test_mjx_sets_validate(task, tmp_path):
     import cogail_envs
 
     env = cogail_envs.make_env(task)
-    eps, stats = rb.generate_varied(env, "pauses", 2, batch=3, max_attempts=6)
+    eps, stats = rb.generate_varied(env, "pauses", 2, max_attempts=6)
     assert stats["kept"] == 2 and stats["validated"] >= 2
     path = rb.write_robust_file(tmp_path / f"{task}.hdf5", env, eps, "pauses", "uniform", 102, "test", 2, stats)
     d = load_demos(path, env, require_init=True)
@@ -198,10 +198,10 @@ def test_varied_training_set_adds_validated_varied_humans_to_the_team(fetchq, fq
 
     k = 2
     with _data_dir(tmp_path):
-        path = rb.ensure_varied_training_set(fetchq, per_variation=k, batch=BATCH, verbose=False)
+        path = rb.ensure_varied_training_set(fetchq, per_variation=k, verbose=False)
         team = load_demos(tmp_path / "fetchq_uniform_train.hdf5", fetchq, require_init=True)
         stamp = path.stat().st_mtime_ns
-        assert rb.ensure_varied_training_set(fetchq, per_variation=k, batch=BATCH, verbose=False) == path
+        assert rb.ensure_varied_training_set(fetchq, per_variation=k, verbose=False) == path
         assert path.stat().st_mtime_ns == stamp  # cached, not made again
     d = load_demos(path, fetchq, require_init=True)
     n = team.num
@@ -210,7 +210,7 @@ def test_varied_training_set_adds_validated_varied_humans_to_the_team(fetchq, fq
         assert int(f.attrs["team_demos"]) == n and int(f.attrs["varied_per_variation"]) == k
     assert np.array_equal(d.length[:n], team.length) and np.allclose(d.obs[:n, : team.obs.shape[1]], team.obs)
     added = slice(n, None)
-    rep = rb.validate_episodes(fetchq, d.init[added], d.actions_human[added], d.actions_robot[added], BATCH)
+    rep = rb.validate_episodes(fetchq, d.init[added], d.actions_human[added], d.actions_robot[added])
     assert np.all(rep["success"] > 0)
     test_inits = np.concatenate([load_demos(p, fetchq, require_init=True).init for p in fq_sets.values()])
     assert not any(np.any(np.all(np.isclose(test_inits, x), axis=1)) for x in d.init[added])
@@ -233,8 +233,8 @@ def test_following_partner_guesses_then_recovers(tmp_path):
     import cogail_envs
 
     env = cogail_envs.make_env("seqmanip")
-    plan, _ = rb.generate_varied(env, "change_of_mind", 4, split="train", batch=5, max_attempts=5)
-    follow, stats = rb.generate_varied(env, "change_of_mind", 4, split="train", batch=5, max_attempts=5,
+    plan, _ = rb.generate_varied(env, "change_of_mind", 4, split="train", max_attempts=5)
+    follow, stats = rb.generate_varied(env, "change_of_mind", 4, split="train", max_attempts=5,
                                        following_partner=True)
     assert stats["kept"] == 4 and np.array_equal(plan.gen_index, follow.gen_index)
     assert np.array_equal(plan.strategy, follow.strategy) and np.array_equal(follow.executed, follow.strategy)
@@ -244,5 +244,5 @@ def test_following_partner_guesses_then_recovers(tmp_path):
         d_h = np.abs(plan.actions_human[i] - follow.actions_human[i]).max(-1) > 1e-6
         early += bool(d_r.any() and (not d_h.any() or np.argmax(d_r) < np.argmax(d_h)))
     assert early >= 3
-    rep = rb.validate_episodes(env, follow.init, follow.actions_human, follow.actions_robot, 5)
+    rep = rb.validate_episodes(env, follow.init, follow.actions_human, follow.actions_robot)
     assert np.all(rep["success"] > 0) and np.array_equal(rep["executed"], follow.strategy)

@@ -198,7 +198,8 @@ def phases_report(runs) -> str:
         if not rec:
             raise RunError(f"{run} has no readable {timing.FILE}: train the run with `cogail train` first")
         records.append((str(run), rec))
-    return timing.phases_table(records) + "\n\n" + timing.parts_table(records)
+    return (timing.phases_table(records) + "\n\n" + timing.parts_table(records) + "\n\n"
+            + timing.compiles_table(records))
 
 
 def run_from_args(a) -> None:

@@ -5,6 +5,7 @@ import argparse
 import json
 import os
 import sys
+import time
 from pathlib import Path
 
 os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
@@ -85,6 +86,14 @@ def _add_config_args(t) -> None:
                    help="override any config field, e.g. --set lambda_a=2.0 (repeatable)")
 
 
+def _keep_full(text: str) -> int | None:
+    if text == "all":
+        return None
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"expected a number of training states (1 or more) or 'all', got {text!r}")
+    return int(text)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from ..algo.config import METHODS
 
@@ -132,6 +141,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--extra-curves", action="store_true", help=EXTRA_CURVES_HELP)
     t.add_argument("--devices", default=None,
                    help="shard the seed axis over N devices or 'all' (one program; seeds must split evenly)")
+    t.add_argument("--keep-full", type=_keep_full, default=1, metavar="N",
+                   help="how many of the newest whole training states RUN/checkpoints/ keeps (default 1: the newest, "
+                        "which --resume continues from), or 'all'; every checkpoint's delivered policy (what eval, "
+                        "play and video read) is kept in RUN/policies/ whatever N is")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     e = sub.add_parser("eval", help="evaluate every checkpoint of a run (interpolation, replay, latent map)",
@@ -351,7 +364,6 @@ def main(argv=None) -> int:
 
 def _dispatch(a) -> int:
     if a.command == "demos":
-        import time
 
         import cogail_envs
 
@@ -381,9 +393,14 @@ def _dispatch(a) -> int:
         from ..algo.config import TrainConfig
         from ..data.sets import make_datasets
 
+        from ..runtime.timing import CompileLog
+
         cfg = TrainConfig.load(Path(a.run) / "config.json") if a.run else _config_from_args(a)
+        t0, compiles = time.perf_counter(), CompileLog()
         for name, path in make_datasets(cfg, robustness=a.robustness).items():
             print(f"{name}: {path}")
+        xla = sum(r["backend"] + r["trace"] for r in compiles.table().values())
+        print(f"datasets ready in {time.perf_counter() - t0:.1f} s ({xla:.1f} s of it compiling)", flush=True)
         return 0
     if a.command == "train":
         from .eval_runner import EvalPrep, eval_run
@@ -393,7 +410,8 @@ def _dispatch(a) -> int:
         kept = {}  # with --eval, each checkpoint's evaluation parameters kept in memory: none is read back
         prep = EvalPrep(a.run, a.robustness, a.extra_curves) if a.eval else None  # made ready while training runs
         run = train_run(cfg, a.run, resume=a.resume, progress=not a.no_progress, devices=a.devices,
-                        keep=kept if a.eval else None, on_compiled=prep.start if prep else None)
+                        keep=kept if a.eval else None, on_compiled=prep.start if prep else None,
+                        keep_full=a.keep_full)
         print(f"trained: {run}")
         if a.eval:
             res = eval_run(run, progress=not a.no_progress, robustness=a.robustness, memory=kept,

@@ -2,7 +2,6 @@
 report with :mod:`cogail_jax.eval.protocol`, replay extra sets; ``EvalPrep`` makes it ready during training."""
 from __future__ import annotations
 
-import functools
 import json
 import sys
 import threading
@@ -22,7 +21,7 @@ from ..eval import rollouts
 from ..eval import protocol
 from ..runtime import tblog, timing
 from ..algo.config import ConfigError, TrainConfig
-from .runs import RunError, Setup, _eval_tree, build, eval_params, total_updates
+from .runs import Policies, RunError, Setup, _eval_tree, build, total_updates
 
 
 def replay_results_dir(run_dir: str | Path, replay_file: str | Path) -> Path:
@@ -30,8 +29,8 @@ def replay_results_dir(run_dir: str | Path, replay_file: str | Path) -> Path:
     return Path(run_dir) / f"replay-{Path(replay_file).stem}"
 
 
-def _checkpoints_to_evaluate(mgr, every: int) -> list[int]:
-    steps = [st for st in ckpt.steps(mgr) if st > 0] or ckpt.steps(mgr)
+def _checkpoints_to_evaluate(store: Policies, every: int) -> list[int]:
+    steps = [st for st in store.steps() if st > 0] or store.steps()
     if every > 1 and steps:  # evaluate every k-th checkpoint (and always the last)
         steps = sorted(set(steps[every - 1::every]) | {steps[-1]})
     return steps
@@ -63,19 +62,12 @@ def _extra_set_checkpoints(res: dict) -> dict[str, int]:
     return cks
 
 
-def _abstract_state(s: Setup):
-    """A zero-argument function giving the shapes of ``s``'s training state (``init.abstract``: from the kept
-    initial-state and BC programs, traced where none is kept; only when a checkpoint is read from disk), computed
-    once."""
-    return functools.cache(lambda: s.init.abstract(s.cfg.seeds, s.expert))
-
-
-def _checkpoint_params(mgr, abstract, memory: dict | None, step: int) -> dict:
-    """``eval_params`` of checkpoint ``step``: from ``memory`` (kept by the training loop) or read from disk
-    (``abstract()``: the state's shapes, ``_abstract_state``)."""
+def _checkpoint_params(store: Policies, memory: dict | None, step: int) -> dict:
+    """``eval_params`` of checkpoint ``step``: from ``memory`` (kept by the training loop) or read from the run's
+    policies (``runs.Policies``)."""
     if memory and step in memory:
         return memory[step]
-    return eval_params(ckpt.restore(mgr, step, abstract()))
+    return store.load(step)
 
 
 def _lengths(sets, key: str = "length") -> np.ndarray:
@@ -91,7 +83,7 @@ def _extra_batch(s: Setup, eps: dict) -> tuple[dict, dict]:
     return {k: batch[k] for k in ("init", "ah", "length", "patient", "margin")}, part
 
 
-def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict, memory: dict | None = None,
+def _replay_extra_sets(s: Setup, store: Policies, res: dict, extra_sets: dict, memory: dict | None = None,
                        eps: dict | None = None, replay=None) -> dict:
     """Replay each extra set at the selected and the paper-protocol replay checkpoints: all sets stacked into one
     batch (one compiled replay program, one call per checkpoint); returns {name: protocol.summarize_extra_set(...)}.
@@ -99,7 +91,7 @@ def _replay_extra_sets(s: Setup, mgr, abstract, res: dict, extra_sets: dict, mem
     ``replay``: ``rollouts.make_replay_fn``'s program, if made already."""
     replay = replay or rollouts.make_replay_fn(s.cfg, s.env, s.nets)
     cks = _extra_set_checkpoints(res)
-    states = {st: _checkpoint_params(mgr, abstract, memory, st) for st in sorted(set(cks.values()))}
+    states = {st: _checkpoint_params(store, memory, st) for st in sorted(set(cks.values()))}
     eps = _extra_episodes(s, extra_sets) if eps is None else eps
     if not eps:
         return {}
@@ -156,7 +148,7 @@ def results_current(run_dir: str | Path, every: int = 1) -> bool:
     except (OSError, ValueError):
         return False
     return ("paper_protocol" in res and res.get("selected") is not None
-            and res.get("checkpoints") == _checkpoints_to_evaluate(ckpt.manager(run_dir), every))
+            and res.get("checkpoints") == _checkpoints_to_evaluate(Policies(run_dir), every))
 
 
 def eval_extra_sets(run_dir: str | Path, extra_sets: dict[str, str | Path]) -> dict:
@@ -175,9 +167,7 @@ def eval_extra_sets(run_dir: str | Path, extra_sets: dict[str, str | Path]) -> d
     if "paper_protocol" not in res:
         raise RunError(f"{run_dir}/results.json predates the reporting protocol: evaluate the run again")
     s = build(TrainConfig.load(run_dir / "config.json"), need_heldout=False, run_dir=run_dir)
-    mgr = ckpt.manager(run_dir)
-    abstract = _abstract_state(s)
-    res["extra_sets"] = {**(res.get("extra_sets") or {}), **_replay_extra_sets(s, mgr, abstract, res, sets)}
+    res["extra_sets"] = {**(res.get("extra_sets") or {}), **_replay_extra_sets(s, Policies(run_dir, s), res, sets)}
     protocol.save_results(run_dir, res)
     _save_extra_sets(run_dir, res, sets)
     return res
@@ -221,26 +211,26 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     for in the eval phase's set-up); its extra sets and ``extra_curves`` then stand for the arguments'.
 
     The seconds spent evaluating and writing replace the ``eval`` and ``write`` phases of RUN/speed.json."""
-    clock, part_clock = timing.Phases(), timing.Phases()
+    clock, part_clock, compiles = timing.Phases(), timing.Phases(), timing.CompileLog()
     run_dir = Path(run_dir)
     if not (run_dir / "config.json").exists():
         raise RunError(f"{run_dir} is not a run directory (no config.json): pass the --run of a training run")
     with clock("eval"):
         with part_clock("setup"):
-            mgr = ckpt.manager(run_dir)
-            steps = _checkpoints_to_evaluate(mgr, every)
+            store = Policies(run_dir)
+            steps = _checkpoints_to_evaluate(store, every)
             if not steps:
                 raise RunError(f"{run_dir} has no checkpoints yet: train it first")
             if hasattr(prepared, "result"):  # an EvalPrep still at work: the eval phase pays for the wait
                 prepared = prepared.result()
             inp = prepared or _eval_inputs(run_dir, _extra_sets(extra_sets, replay_file), robustness, extra_curves)
             s, sets, eps, part = inp.s, inp.sets, inp.eps, inp.part
-            abstract = _abstract_state(s)
+            store.s = s
         with part_clock("checkpoints"):
-            per_ckpt, codes = _evaluate_checkpoints(s, mgr, abstract, steps, inp.held, part, ckpt_batch, progress,
+            per_ckpt, codes = _evaluate_checkpoints(s, store, steps, inp.held, part, ckpt_batch, progress,
                                                     memory, inp.evaluate_fn)
             if not per_ckpt:
-                raise ckpt.nothing_restored(mgr, run_dir)
+                raise ckpt.nothing_restored(store.mgr, run_dir)
             res, at, lat = _summarize(s, per_ckpt, codes, part)
             windows = tblog.episode_windows(res["checkpoints"], -(-s.env.max_episode_steps // s.cfg.unroll_length))
             train_succ = tblog.training_success(run_dir, s.cfg.seeds, s.cfg.steps_per_update, windows)
@@ -250,12 +240,13 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
                 res["extra_sets"] = _extra_sets_results(s, per_ckpt, res, eps, sets)
         with part_clock("extra_sets"):
             if sets and not inp.extra_curves:
-                res["extra_sets"] = _replay_extra_sets(s, mgr, abstract, res, sets, memory, eps, inp.replay_fn)
+                res["extra_sets"] = _replay_extra_sets(s, store, res, sets, memory, eps, inp.replay_fn)
     with clock("write"):
         _write_eval_outputs(run_dir, s, res, at, lat, sets, robustness)
     if prepared is not None:
         part_clock.add("prepared", prepared.seconds)
-    timing.write(run_dir, timing.merge_eval(timing.read(run_dir), clock, part_clock, **timing.device_info()))
+    timing.write(run_dir, timing.merge_eval(timing.read(run_dir), clock, part_clock, compiles.table(),
+                                            **timing.device_info()))
     return res
 
 
@@ -309,10 +300,10 @@ SWITCH_INTERVAL = 2e-4  # seconds: how soon a thread waiting for Python's lock g
 
 class EvalPrep:
     """``cogail train --eval``'s evaluation made ready while training runs, when the host is idle and the device
-    busy: in a background thread, the test, validation and varied-human sets are loaded (made if missing) and the
-    evaluation programs traced and compiled (``EvalInputs``). ``start`` starts it once the training program has
-    compiled (``train_run``'s ``on_compiled``: while BC runs on a fresh one-device run, else after the first
-    training call); ``result()`` waits for it. A preparation that fails prints a warning, and ``eval_run`` then
+    busy: in a background thread, the test, validation and varied-human sets are loaded and the evaluation
+    programs traced and compiled (``EvalInputs``). ``start`` starts it (``train_run``'s ``on_compiled``: as BC
+    starts on a fresh one-device run, beside the training program's compilation; else after the first training
+    call); ``result()`` waits for it. A preparation that fails prints a warning, and ``eval_run`` then
     prepares again itself (raising the error, if it is one, where it belongs)."""
 
     def __init__(self, run_dir: str | Path, robustness: bool = True, extra_curves: bool = False,
@@ -399,7 +390,7 @@ def _out_of_memory(e: Exception) -> bool:
     return "RESOURCE_EXHAUSTED" in str(e) or "out of memory" in str(e).lower()
 
 
-def _evaluate_checkpoints(s: Setup, mgr, abstract, steps: list[int], held: dict, part: dict, ckpt_batch: int,
+def _evaluate_checkpoints(s: Setup, store: Policies, steps: list[int], held: dict, part: dict, ckpt_batch: int,
                           progress: bool, memory: dict | None = None, evaluate_fn=None) -> tuple[dict, object]:
     """{step: _split_sets(...)} for every checkpoint that restores (``ckpt_batch`` of them per device call), and
     the interpolation codes. A device call that runs out of memory is tried again with half as many checkpoints
@@ -416,7 +407,7 @@ def _evaluate_checkpoints(s: Setup, mgr, abstract, steps: list[int], held: dict,
         group = []
         for step in steps[i:i + ckpt_batch]:
             try:
-                group.append((step, _checkpoint_params(mgr, abstract, memory, step)))
+                group.append((step, _checkpoint_params(store, memory, step)))
             except ckpt.CheckpointError as e:
                 print(f"warning: {e}; skipped", flush=True)
         if group:

@@ -34,7 +34,6 @@ from ..runtime import checkpoint as ckpt
 from ..data import io as data
 from ..eval import rollouts
 from ..eval import protocol
-from ..algo import train
 from ..algo.config import ConfigError, TrainConfig
 from .runs import RunError
 
@@ -125,23 +124,23 @@ class Policy:
 
 def load_policy(run_dir: str | Path, cfg: TrainConfig, label: str, which: str = "best") -> tuple[Policy, object]:
     """Restore a run's checkpoint; returns the policy and the run's environment."""
-    from .runs import build
+    from .runs import Policies, build
 
     run_dir = Path(run_dir)
     s = build(cfg, need_heldout=False, run_dir=run_dir, need_demos=False)  # no demonstration file is read
-    mgr = ckpt.manager(run_dir)
-    steps = ckpt.steps(mgr)
+    store = Policies(run_dir, s)
+    steps = store.steps()
     if not steps:
         raise RunError(f"{run_dir} has no checkpoints yet: train it first")
     i, step = pick_checkpoint(run_dir, s.cfg, steps, which)
     try:
-        state = ckpt.restore(mgr, step, s.init.abstract(s.cfg.seeds, s.expert))
+        tree = store.load(step)
     except ckpt.CheckpointError as e:
         raise RunError(f"{e}; pass another --checkpoint or --run, or retrain the run")
     one = lambda tree: jax.tree.map(lambda x: x[i], tree)  # noqa: E731
     _, robot_step = rollouts.make_robot_step(s.cfg, s.env, s.nets)
     policy = Policy(label, run_dir, cfg.method, int(cfg.seeds[i]), int(step), cfg.history,
-                    one(train.policy_params(state.params)), one(state.norm), jax.jit(robot_step))
+                    one(tree["params"]), one(tree["norm"]), jax.jit(robot_step))
     return policy, s.env
 
 

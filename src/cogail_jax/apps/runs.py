@@ -143,3 +143,30 @@ def eval_params(state) -> dict:
     return jax.device_put(_eval_tree(state), jax.devices()[0])
 
 
+class Policies:
+    """A run's delivered policies, as evaluation, play and video read them: RUN/policies/ (one per checkpoint:
+    ``_eval_tree``), or, for a run trained before policies were kept apart, its full training states. ``s``: the
+    run's ``Setup`` (its state's shapes check and place what is read). ``steps()``: the checkpoints there are;
+    ``load(step)``: ``eval_params`` of one; ``mgr``: the manager read (its ``failures`` name what did not
+    restore)."""
+
+    def __init__(self, run_dir: str | Path, s: Setup | None = None):
+        self.run_dir, self.s = Path(run_dir), s
+        self.mgr = ckpt.policy_manager(run_dir)
+        self.full = self.mgr is None or not ckpt.steps(self.mgr)
+        if self.full:
+            self.mgr = ckpt.manager(run_dir)
+        self._abstract = None
+
+    def steps(self) -> list[int]:
+        return ckpt.steps(self.mgr)
+
+    def _expected(self):
+        if self._abstract is None:
+            state = self.s.init.abstract(self.s.cfg.seeds, self.s.expert)
+            self._abstract = state if self.full else jax.eval_shape(_eval_tree, state)
+        return self._abstract
+
+    def load(self, step: int) -> dict:
+        tree = ckpt.restore(self.mgr, step, self._expected())
+        return eval_params(tree) if self.full else tree

@@ -2,6 +2,7 @@
 checkpoint in the background. Everything on the device is :mod:`cogail_jax.algo.train`."""
 from __future__ import annotations
 
+import json
 import sys
 import threading
 import time
@@ -15,7 +16,7 @@ from ..runtime import checkpoint as ckpt
 from ..data import manifest
 from ..runtime import timing
 from ..algo.config import TrainConfig
-from .runs import RunError, Setup, build, eval_params, prepare_run_dir, total_updates
+from .runs import RunError, Setup, _eval_tree, build, eval_params, prepare_run_dir, total_updates
 
 
 def _log_scalars(writers, metrics, update0, steps_per_update):
@@ -85,14 +86,17 @@ def _abstract(tree):
 
 
 def _compile_during_bc(s: Setup, state, on_compiled, seconds: dict) -> threading.Thread:
-    """A background thread, started: the training chunk compiled for ``state``'s shapes, then ``on_compiled(s,
-    state)`` (``EvalPrep.start``). The main thread meanwhile runs BC: a long device loop that the GPU runtime
-    drives from the calling thread, which holds no Python lock then. A failure only costs the time: the first
+    """A background thread, started: ``on_compiled(s, state)`` (``EvalPrep.start``: the evaluation's sets and
+    programs, in a thread of its own), then the training chunk compiled for ``state``'s shapes. The main thread
+    meanwhile runs BC: a long device loop that the GPU runtime drives from the calling thread, which holds no
+    Python lock then; XLA compiles the two programs side by side. A failure only costs the time: the first
     training call compiles the chunk (and raises the error) itself. ``seconds["chunk_compile"]``: how long the
     compilation took."""
     abstract = _abstract(state)
 
     def work():
+        if on_compiled is not None:
+            on_compiled(s, abstract)
         t0 = time.perf_counter()
         try:
             s.chunk.lower(abstract, s.expert).compile()
@@ -100,8 +104,6 @@ def _compile_during_bc(s: Setup, state, on_compiled, seconds: dict) -> threading
             return
         finally:
             seconds["chunk_compile"] = time.perf_counter() - t0
-        if on_compiled is not None:
-            on_compiled(s, abstract)
 
     t = threading.Thread(target=work, name="compile-during-bc", daemon=True)
     t.start()
@@ -140,6 +142,7 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
     state, s.expert = place_on_devices(state, s.expert, devices, len(cfg.seeds))
     here = ckpt.layout(state)
     if fresh:
+        ckpt.save_policy(ckpt.manager(run_dir, folder=ckpt.POLICIES), 0, _eval_tree(state), json.loads(cfg.to_json()))
         ckpt.save(mgr, 0, state)
     else:
         saved = ckpt.saved_layout(mgr, start) or ckpt.run_layout(run_dir)
@@ -188,7 +191,7 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
     cfg, upc, total = s.cfg, s.cfg.updates_per_call, total_updates(s.cfg)
     writers = [FileWriter(str(run_dir / "tb" / f"seed_{sd}")) for sd in cfg.seeds]
     bar = tqdm(total=total, initial=start, unit="upd", disable=not progress, dynamic_ncols=True, file=sys.stdout)
-    saver = ckpt.BackgroundSaver(mgr)
+    saver = ckpt.BackgroundSaver(mgr, ckpt.manager(run_dir, folder=ckpt.POLICIES), json.loads(cfg.to_json()))
     stats, t_loop = LoopStats(start, []), time.perf_counter()
     pending = None  # (first update, device metrics, (update, state copy) or None) of the call not logged yet
 
@@ -201,7 +204,7 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
                 stats.steady_seconds = time.perf_counter() - t_loop - stats.call_seconds[0]
             bar.set_postfix(_postfix(_check_and_log(writers, m, u0, cfg, saver), stats))
             if to_save is not None:
-                saver.submit(*to_save)
+                saver.submit(*to_save, policy=_eval_tree(to_save[1]))
                 if keep is not None:
                     keep[to_save[0]] = eval_params(to_save[1])
 
@@ -238,14 +241,19 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
     return stats
 
 
+KEEP_FULL = 1  # full training states a run keeps by default: the newest, which resume needs
+
+
 def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True,
               stop_after: int | None = None, devices: str | int | None = None, keep: dict | None = None,
-              on_compiled=None) -> Path:
-    """Train (or resume) a run; returns the run directory. ``stop_after`` stops early after that many updates
-    (tests use it to simulate an interrupted run). Records the time of each phase in RUN/speed.json
+              on_compiled=None, keep_full: int | None = KEEP_FULL) -> Path:
+    """Train (or resume) a run; returns the run directory. Every checkpoint writes the delivered policy to
+    RUN/policies/ (what evaluation, play and video read) and the whole training state to RUN/checkpoints/, of
+    which the ``keep_full`` newest are kept (resume starts from the newest; None keeps every one). ``stop_after``
+    stops early after that many updates (tests use it to simulate an interrupted run). Records the time of each phase in RUN/speed.json
     (``timing``; a resumed run adds to it). ``keep``: a dict that receives each checkpoint's ``eval_params``
     as it is written, for ``eval_run(..., memory=keep)``. ``on_compiled``: see ``_train_loop``."""
-    clock = timing.Phases()
+    clock, compiles = timing.Phases(), timing.CompileLog()
     clock.take_process_start()  # the command's imports before this call count as "start"
     run_dir = Path(run_dir)
     with clock("start"):
@@ -255,7 +263,10 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
     with clock("demos"):  # found, not made (`cogail data` makes them), and recorded in RUN/data.json
         s = build(cfg, need_heldout=False, run_dir=run_dir)
         manifest.record_expert(run_dir, s.expert)
-    mgr = ckpt.manager(run_dir)
+    if keep_full is not None and keep_full < 1:
+        raise RunError(f"--keep-full {keep_full}: a run keeps at least its newest training state (resume needs it); "
+                       "pass 1 or more, or all")
+    mgr = ckpt.manager(run_dir, keep=keep_full)
     parts: dict = {}
     state, start, called = _start_state(s, mgr, run_dir, resume, devices, clock, on_compiled, parts)
     stats = _train_loop(s, state, mgr, run_dir, start, progress, stop_after, keep, None if called else on_compiled)
@@ -265,7 +276,7 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
     parts.update(timing.call_parts(stats.call_seconds, stats.checkpoint_calls))
     timing.write(run_dir, timing.merge_train(
         timing.read(run_dir) if resume else {}, clock, stats.steady_steps, stats.steady_seconds, resume, parts,
-        task=s.cfg.task, method=s.cfg.method, updates=stats.update, seeds=len(s.cfg.seeds),
+        compiles.table(), task=s.cfg.task, method=s.cfg.method, updates=stats.update, seeds=len(s.cfg.seeds),
         steps_per_update=s.cfg.steps_per_update, **timing.device_info()))
     return run_dir
 

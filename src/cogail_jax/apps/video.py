@@ -28,10 +28,8 @@ def _rollout_states(env, policy, init_states, T):
 def _run_rollouts(run: Path, num: int, steps: int | None):
     """(env, [(interpolation states, T), (replay states, T)]) for a trained run; the replay row only where the
     run's test split is on disk."""
-    from ..runtime import checkpoint as ckpt
     from ..eval import rollouts
     from ..eval import protocol
-    from ..algo import train
     from . import runs
     from ..algo.config import TrainConfig
 
@@ -41,25 +39,24 @@ def _run_rollouts(run: Path, num: int, steps: int | None):
     cfg = TrainConfig.load(run / "config.json")
     s = runs.build(cfg, need_heldout=False, run_dir=run, need_demos=False)  # no demonstration file is needed
     env = s.env
-    mgr = ckpt.manager(run)
-    if not ckpt.steps(mgr):
+    store = runs.Policies(run, s)
+    steps_there = store.steps()
+    if not steps_there:
         raise runs.RunError(f"{run} has no checkpoints yet: train it first (cogail train --run {run})")
-    latest = max(ckpt.steps(mgr))
+    latest = max(steps_there)
     seed, chosen = None, None
     if (run / "results.json").exists():  # the checkpoint selected on validation, and its best seed there
         seed, chosen = protocol.selected_checkpoint(json.loads((run / "results.json").read_text()))
     si = list(cfg.seeds).index(seed) if seed in cfg.seeds else 0
-    abstract = s.init.abstract(cfg.seeds, s.expert)
 
     def load(step):
-        state = ckpt.restore(mgr, step, abstract)
-        params = train.policy_params(state.params)
-        return jax.tree.map(lambda x: x[si], params), jax.tree.map(lambda x: x[si], state.norm)
+        tree = store.load(step)
+        return jax.tree.map(lambda x: x[si], tree["params"]), jax.tree.map(lambda x: x[si], tree["norm"])
 
     T = min(env.max_episode_steps, steps or env.max_episode_steps)
     actor = s.nets["actor"].apply
     # interpolation: codes spread over the grid, the co-policy acts for both agents
-    params, norm = load(chosen if chosen in ckpt.steps(mgr) else latest)
+    params, norm = load(chosen if chosen in steps_there else latest)
     codes = rollouts.interpolation_codes(cfg.eval_codes)
     z = codes[np.linspace(0, len(codes) - 1, num).astype(int)]
     z = z if cfg.use_code else jnp.zeros_like(z)

@@ -72,8 +72,8 @@ def run_sets(cfg, robustness: bool = True, make: bool = False, verbose: bool = T
 
 
 def make_datasets(cfg, robustness: bool = True, verbose: bool = True) -> dict[str, Path]:
-    """``cogail data``: make every set of ``cfg``'s run that is missing or stale (one generator program per set
-    kind and batch size, the task's compiled programs kept in the compilation cache); returns them by name."""
+    """``cogail data``: make every set of ``cfg``'s run that is missing or stale (all by the task's one generator
+    program, :mod:`.generate`, kept in the compilation cache); returns them by name."""
     return run_sets(cfg, robustness=robustness, make=True, verbose=verbose)
 
 

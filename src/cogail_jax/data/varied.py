@@ -9,8 +9,9 @@ human-human episode, and is kept only if it is validated by re-simulation: both 
 replayed open-loop from the recorded initial state, make the env report success with the same strategy id.
 
 :func:`ensure_robustness_sets` writes (and caches) one HDF5 file per variation in the dataset schema
-(:mod:`cogail_jax.data.io`), ``data/<task>_<mix>_robust-<variation>.hdf5``, generated in jitted, vmapped
-batches (one compiled rollout serves every variation: the variation id is an argument, not a constant).
+(:mod:`cogail_jax.data.io`), ``data/<task>_<mix>_robust-<variation>.hdf5``, made by the task's generator
+(:mod:`.generate`: the variation is an argument, so one compiled program serves every variation, and the
+variations' episodes share its calls).
 Generator seeds: 100 + variation index (test split), 200 + index (validation split), distinct from the
 default sets' 0 (train), 1 (test) and 2 (validation). File attrs: the usual ones plus ``variation``,
 ``variation_id``, ``split``, ``requested``, ``attempted``, ``team_success``, ``validated``, ``yield`` and
@@ -40,6 +41,7 @@ from cogail_envs.variations import VARIATIONS, variation_id
 
 from cogail_envs import team_of
 
+from .generate import Request, chunks, generator_batch, replay_fn, resolve_mix, run_episodes, run_requests
 from .io import _stored_version, data_dir, default_count, load_demos, missing, save_demos
 
 ROBUST_VERSION = 2  # bump when the variations change (cached files are regenerated)
@@ -76,79 +78,8 @@ def robust_path(task: str, variation: str, mix: str = "uniform", split: str = "t
     return data_dir() / f"{task}_{mix}_{PREFIX}{variation}{tail}.hdf5"
 
 
-# ------------------------------------------------------------------------------------------ compiled programs
-def _cached(env, kind: str, batch: int, build):
-    """One compiled program per (env object, kind, batch size)."""
-    cache = env.__dict__.setdefault("_robustness_fns", {})
-    if (kind, batch) not in cache:
-        cache[(kind, batch)] = build()
-    return cache[(kind, batch)]
-
-
-def rollout_fn(env, batch: int):
-    """Jitted ``f(keys (B, 2), mix, variation, resalt) -> dict`` of ``batch`` scripted episodes, one per key.
-
-    ``variation``: int32 id (0 none, i: ``VARIATIONS[i - 1]``); ``resalt`` > 0 re-draws the per-step
-    randomness (same initial state, strategy and episode-level draws)."""
-    T = env.max_episode_steps
-    team = team_of(env)
-
-    def one(key, mix, variation, resalt):
-        k_init, k_team, k_run = jax.random.split(key, 3)
-        k_run = jnp.where(resalt > 0, jax.random.fold_in(k_run, resalt), k_run)
-        init = env.sample_init(k_init)
-        state = env.reset_from(init)
-        ts, strategy = team.init(env, k_team, mix, variation)
-
-        def body(carry, k):
-            state, ts, finished, metrics = carry
-            ts, action = team.act(env, ts, state, k)
-            nxt = env.step(state, action)
-            new_state = jax.tree.map(lambda a, b: jnp.where(finished, a, b), state, nxt)
-            new_metrics = jax.tree.map(lambda a, b: jnp.where(finished, a, b), metrics, nxt.metrics)
-            return (new_state, ts, finished | (nxt.done > 0), new_metrics), (state.obs, action, finished)
-
-        carry = (state, ts, jnp.array(False), state.metrics)
-        (_, _, _, metrics), (obs, act, fin) = jax.lax.scan(body, carry, jax.random.split(k_run, T))
-        a_h, a_r = env.split_action(act)
-        return dict(obs=obs, actions_human=a_h, actions_robot=a_r, length=jnp.sum(~fin).astype(jnp.int32),
-                    strategy=strategy, executed=env.classify_strategy(metrics), success=metrics["success"],
-                    init=init, final_metrics=metrics)
-
-    return _cached(env, "rollout", batch, lambda: jax.jit(jax.vmap(one, in_axes=(0, None, None, None))))
-
-
-def replay_fn(env, batch: int):
-    """Jitted ``f(init (B, I), actions_human (B, T, Ah), actions_robot (B, T, Ar)) -> dict``: both agents'
-    actions replayed open-loop from ``reset_from(init)``; success, executed strategy and length."""
-
-    def one(init, a_h, a_r):
-        state = env.reset_from(init)
-
-        def body(carry, a):
-            state, finished, metrics = carry
-            nxt = env.step(state, a)
-            new_state = jax.tree.map(lambda o, n: jnp.where(finished, o, n), state, nxt)
-            new_metrics = jax.tree.map(lambda o, n: jnp.where(finished, o, n), metrics, nxt.metrics)
-            return (new_state, finished | (nxt.done > 0), new_metrics), finished
-
-        carry = (state, jnp.array(False), state.metrics)
-        (_, _, metrics), fin = jax.lax.scan(body, carry, jnp.concatenate([a_h, a_r], -1))
-        return dict(success=metrics["success"], executed=env.classify_strategy(metrics),
-                    length=jnp.sum(~fin).astype(jnp.int32))
-
-    return _cached(env, "replay", batch, lambda: jax.jit(jax.vmap(one)))
-
-
 def _episode_keys(seed: int, index: np.ndarray) -> jax.Array:
     return jax.vmap(jax.random.fold_in, in_axes=(None, 0))(jax.random.PRNGKey(seed), jnp.asarray(index, jnp.uint32))
-
-
-def _batches(n: int, batch: int):
-    """Index arrays of length ``batch`` covering range(n) (the last one padded by repeating index 0)."""
-    for s in range(0, n, batch):
-        idx = np.arange(s, min(s + batch, n))
-        yield idx, np.concatenate([idx, np.zeros(batch - len(idx), idx.dtype)])
 
 
 def _hold_pad(env, actions: np.ndarray, length: np.ndarray) -> np.ndarray:
@@ -171,15 +102,16 @@ def _pad_time(a: np.ndarray, T: int) -> np.ndarray:
     return np.concatenate([a, np.zeros((a.shape[0], T - a.shape[1], a.shape[2]), a.dtype)], 1)
 
 
-def validate_episodes(env, init, actions_human, actions_robot, batch: int) -> dict[str, np.ndarray]:
+def validate_episodes(env, init, actions_human, actions_robot, batch: int | None = None) -> dict[str, np.ndarray]:
     """Open-loop re-simulation of recorded episodes (arrays padded to ``max_episode_steps`` or shorter):
     ``success``, ``executed`` and ``length`` per episode."""
     T = env.max_episode_steps
     ah, ar = _pad_time(np.asarray(actions_human, np.float32), T), _pad_time(np.asarray(actions_robot, np.float32), T)
     init = np.asarray(init, np.float32)
+    batch = generator_batch(batch)
     f = replay_fn(env, batch)
     out = {k: np.zeros(len(init), d) for k, d in (("success", np.float32), ("executed", np.int32), ("length", np.int32))}
-    for idx, pad in _batches(len(init), batch):
+    for idx, pad in chunks(len(init), batch):
         r = jax.device_get(f(jnp.asarray(init[pad]), jnp.asarray(ah[pad]), jnp.asarray(ar[pad])))
         for k in out:
             out[k][idx] = np.asarray(r[k])[: len(idx)]
@@ -187,8 +119,69 @@ def validate_episodes(env, init, actions_human, actions_robot, batch: int) -> di
 
 
 # ------------------------------------------------------------------------------------------ generation
-def _batch_size(env, num: int, batch: int | None) -> int:
-    return int(batch) if batch else max(4, int(np.ceil(num * 1.25)) + 2)
+def _attempts(num: int) -> int:
+    """Episodes tried first for ``num`` kept ones (most validate)."""
+    return max(4, int(np.ceil(num * 1.25)) + 2)
+
+
+class VariedSpec(NamedTuple):
+    """A varied set to make: ``num`` episodes of ``variation`` from generator seed ``seed`` (``following_partner``:
+    see ``generate_varied``)."""
+
+    variation: str
+    num: int
+    seed: int
+    following_partner: bool = False
+
+
+def generate_varied_sets(env, specs: list[VariedSpec], mix="uniform", batch: int | None = None,
+                         max_attempts: int | None = None) -> list[tuple[VariedEpisodes, dict]]:
+    """``generate_varied`` for several sets at once: each round tries episodes of every set still short of its
+    ``num`` in the same generator calls (``generate.run_requests``), so the sets share chunks."""
+    from cogail_envs.variations import FOLLOWING_PARTNER
+
+    vids = []
+    for sp in specs:
+        vid = variation_id(sp.variation)
+        if sp.following_partner:
+            if not team_of(env).partner_can_follow:
+                raise ValueError(f"{env.name}'s scripted robot has no following mode")
+            vid |= FOLLOWING_PARTNER
+        vids.append(vid)
+    batch = generator_batch(batch)
+    w = resolve_mix(env, mix)
+    limit = [max_attempts or 5 * sp.num for sp in specs]
+    state = [{"kept": [], "attempted": 0, "team_ok": 0, "valid": 0, "start": 0,
+              "size": min(_attempts(sp.num), lim)} for sp, lim in zip(specs, limit)]
+
+    def short(i):
+        st = state[i]
+        return sum(len(k["length"]) for k in st["kept"]) < specs[i].num and st["attempted"] < limit[i]
+
+    while todo := [i for i in range(len(specs)) if short(i)]:
+        index = {i: np.arange(state[i]["start"], state[i]["start"] + state[i]["size"]) for i in todo}
+        outs = run_requests(env, [Request(_episode_keys(specs[i].seed, index[i]), w, vids[i], validate=True)
+                                  for i in todo], batch)
+        for i, out in zip(todo, outs):
+            st = state[i]
+            ok = (out["success"] > 0) & (out["executed"] == out["strategy"])
+            good = ok & (out.pop("valid_success") > 0) & (out.pop("valid_executed") == out["strategy"])
+            st["start"] += st["size"]
+            st["attempted"] += st["size"]
+            st["size"] = min(batch, limit[i] - st["attempted"])
+            st["team_ok"] += int(ok.sum())
+            st["valid"] += int(good.sum())
+            sel = jax.tree.map(lambda v: v[good], out)
+            sel["gen_index"] = index[i][good]
+            st["kept"].append(sel)
+    res = []
+    for sp, st in zip(specs, state):
+        kept = st["kept"]
+        cat = jax.tree.map(lambda *xs: np.concatenate(xs)[: sp.num], *kept)
+        eps = VariedEpisodes(**{k: cat[k] for k in VariedEpisodes._fields})
+        res.append((eps, {"attempted": st["attempted"], "team_success": st["team_ok"], "validated": st["valid"],
+                          "yield": st["valid"] / max(st["attempted"], 1), "kept": int(len(eps.length))}))
+    return res
 
 
 def generate_varied(env, variation: str, num: int, mix="uniform", seed: int | None = None, split: str = "test",
@@ -196,46 +189,13 @@ def generate_varied(env, variation: str, num: int, mix="uniform", seed: int | No
                     following_partner: bool = False) -> tuple[VariedEpisodes, dict]:
     """``num`` varied episodes that succeed (with the strategy drawn) and validate by re-simulation, and the
     yield: ``{"attempted", "team_success", "validated", "yield"}`` (yield = validated / attempted over all the
-    generator batches that were run). Batches of ``batch`` episodes until ``num`` are kept or ``max_attempts``
-    (default 5 num) were tried. ``following_partner``: the scripted robot follows the human's apparent strategy
+    generator calls that were run). Tries a quarter more than ``num`` first, then chunks of ``batch`` until ``num``
+    are kept or ``max_attempts`` (default 5 num) were tried; the kept ones are the first ``num`` that validate, in
+    generator order. ``following_partner``: the scripted robot follows the human's apparent strategy
     (:mod:`cogail_envs.variations`; teams with ``partner_can_follow``), with the same human draws."""
-    from cogail_envs.variations import FOLLOWING_PARTNER
-
-    from .generate import resolve_mix
-
-    vid = variation_id(variation)
-    if following_partner:
-        if not team_of(env).partner_can_follow:
-            raise ValueError(f"{env.name}'s scripted robot has no following mode")
-        vid |= FOLLOWING_PARTNER
     seed = variation_seed(variation, split) if seed is None else int(seed)
-    batch = _batch_size(env, num, batch)
-    max_attempts = max_attempts or 5 * num
-    w = resolve_mix(env, mix)
-    f = rollout_fn(env, batch)
-    kept, attempted, team_ok, valid = [], 0, 0, 0
-    start = 0
-    while sum(len(k["length"]) for k in kept) < num and attempted < max_attempts:
-        index = np.arange(start, start + batch)
-        start += batch
-        out = jax.device_get(f(_episode_keys(seed, index), w, jnp.int32(vid), jnp.int32(0)))
-        out = {k: (np.asarray(v) if k != "final_metrics" else {m: np.asarray(x) for m, x in v.items()})
-               for k, v in out.items()}
-        ok = (out["success"] > 0) & (out["executed"] == out["strategy"])
-        rep = validate_episodes(env, out["init"], out["actions_human"], out["actions_robot"], batch)
-        good = ok & (rep["success"] > 0) & (rep["executed"] == out["strategy"])
-        attempted += batch
-        team_ok += int(ok.sum())
-        valid += int(good.sum())
-        sel = {k: (v[good] if k != "final_metrics" else {m: x[good] for m, x in v.items()}) for k, v in out.items()}
-        sel["gen_index"] = index[good]
-        kept.append(sel)
-    cat = {k: (np.concatenate([s[k] for s in kept])[:num] if k != "final_metrics" else
-               {m: np.concatenate([s[k][m] for s in kept])[:num] for m in kept[0][k]}) for k in kept[0]}
-    eps = VariedEpisodes(**cat)
-    stats = {"attempted": attempted, "team_success": team_ok, "validated": valid,
-             "yield": valid / max(attempted, 1), "kept": int(len(eps.length))}
-    return eps, stats
+    return generate_varied_sets(env, [VariedSpec(variation, num, seed, following_partner)], mix, batch,
+                                max_attempts)[0]
 
 
 def _file_ok(path: Path, env, variation: str, num: int, split: str) -> bool:
@@ -273,7 +233,7 @@ def ensure_robustness_sets(env, mix="uniform", split: str = "test", num: int = 0
     """``{"robust-<variation>": path}``: one HDF5 file of ``num`` varied, validated episodes per variation (0: the
     size of the task's test split), generated when missing or when the env's physics or the variations changed;
     with ``make=False`` such a file raises ``MissingDataError`` instead."""
-    out = {}
+    out, todo = {}, []
     num = num or default_count(env.name, "test")
     for v in variations:
         variation_id(v)
@@ -281,16 +241,19 @@ def ensure_robustness_sets(env, mix="uniform", split: str = "test", num: int = 0
         if not _file_ok(path, env, v, num, split):
             if not make:
                 raise missing(path, f"the varied human '{v}' ({split})")
-            seed = variation_seed(v, split)
-            if verbose:
-                print(f"making {num} '{v}' robustness episodes for {env.name} ({split}, seed {seed}) -> {path}",
-                      flush=True)
-            eps, stats = generate_varied(env, v, num, mix=mix, seed=seed, split=split, batch=batch)
-            if verbose:
-                print(f"  {stats['validated']}/{stats['attempted']} succeeded and validated "
-                      f"(yield {100 * stats['yield']:.0f} %), kept {stats['kept']}", flush=True)
-            write_robust_file(path, env, eps, v, str(mix), seed, split, num, stats)
+            todo.append((v, path))
         out[PREFIX + v] = path
+    if todo:  # every missing variation made in the same generator calls
+        if verbose:
+            print(f"making {num} episodes of each of {len(todo)} varied humans for {env.name} ({split}, seeds "
+                  f"{', '.join(str(variation_seed(v, split)) for v, _ in todo)})", flush=True)
+        made = generate_varied_sets(env, [VariedSpec(v, num, variation_seed(v, split)) for v, _ in todo], mix,
+                                    batch)
+        for (v, path), (eps, stats) in zip(todo, made):
+            if verbose:
+                print(f"  '{v}': {stats['validated']}/{stats['attempted']} succeeded and validated "
+                      f"(yield {100 * stats['yield']:.0f} %), kept {stats['kept']} -> {path}", flush=True)
+            write_robust_file(path, env, eps, v, str(mix), variation_seed(v, split), split, num, stats)
     return out
 
 
@@ -321,11 +284,9 @@ def ensure_varied_training_set(env, mix="uniform", num: int = 0, per_variation: 
     if not make:
         raise missing(path, "the training set with varied humans")
     team = load_demos(team_path, env, require_init=True)
-    parts = [team]
-    for v in VARIATIONS:
-        eps, _ = generate_varied(env, v, per_variation, mix=mix, split="train", batch=batch,
-                                 following_partner=follows and v == "change_of_mind")
-        parts.append(eps)
+    specs = [VariedSpec(v, per_variation, variation_seed(v, "train"), follows and v == "change_of_mind")
+             for v in VARIATIONS]
+    parts = [team, *(eps for eps, _ in generate_varied_sets(env, specs, mix, batch))]
     if verbose:
         print(f"adding {per_variation} varied-human episodes per variation to {team_path} -> {path}", flush=True)
     T = max(p.obs.shape[1] for p in parts)
@@ -371,19 +332,12 @@ def twin_episodes(env, varied_file, batch: int | None = None, resalt: int = 0) -
     randomness. Keys: obs, actions_human, actions_robot, length, success, executed, strategy, init."""
     import h5py
 
-    from .generate import resolve_mix
-
     attrs, gen = read_attrs(varied_file)
     n = len(gen)
-    batch = batch or _batch_size(env, n, None)
     w = resolve_mix(env, attrs.get("mixture", "uniform"))
-    f = rollout_fn(env, batch)
-    out: dict[str, list] = {}
-    for idx, pad in _batches(n, batch):
-        o = jax.device_get(f(_episode_keys(int(attrs["seed"]), gen[pad]), w, jnp.int32(0), jnp.int32(resalt)))
-        for k in ("obs", "actions_human", "actions_robot", "length", "success", "executed", "strategy", "init"):
-            out.setdefault(k, []).append(np.asarray(o[k])[: len(idx)])
-    out = {k: np.concatenate(v) for k, v in out.items()}
+    o = run_episodes(env, _episode_keys(int(attrs["seed"]), gen), w, resalt=resalt, batch=batch)
+    out = {k: o[k] for k in ("obs", "actions_human", "actions_robot", "length", "success", "executed", "strategy",
+                             "init")}
     with h5py.File(varied_file, "r") as f5:
         inits = np.stack([np.asarray(f5["data"][f"demo_{i}"]["init"][()]) for i in range(n)])
         strategy = np.asarray([int(f5["data"][f"demo_{i}"].attrs["strategy"]) for i in range(n)])
@@ -406,7 +360,6 @@ def blind_robot_success(env, varied_file, batch: int | None = None) -> dict:
     attrs, _ = read_attrs(varied_file)
     demos = load_demos(varied_file, env, require_init=True)
     n, T = demos.num, env.max_episode_steps
-    batch = batch or _batch_size(env, n, None)
     twin = twin_episodes(env, varied_file, batch)
     ref = twin_episodes(env, varied_file, batch, resalt=1)
     robot = _hold_pad(env, twin["actions_robot"], twin["length"])

@@ -1,4 +1,7 @@
-"""Orbax checkpoints of the whole (seed-stacked) TrainState, portable across device layouts.
+"""Orbax checkpoints of a run, portable across device layouts: RUN/checkpoints/ holds whole (seed-stacked)
+TrainStates, for exact resume (the newest, plus as many as the user keeps: ``manager(run, keep=...)``);
+RUN/policies/ holds, at every checkpoint, the delivered policy only (what evaluation, play and video read:
+``save_policy`` / ``restore_policy``).
 
 A checkpoint is restored onto the devices of the process that loads it, whatever device kind or count saved it
 (a run trained on GPUs is evaluated, played and resumed on a CPU, on fewer devices or on more). A checkpoint that
@@ -41,11 +44,21 @@ class Manager(ocp.CheckpointManager):
         self.failures: dict[int, CheckpointError] = {}
 
 
-def manager(run_dir: str | Path) -> Manager:
+FULL, POLICIES = "checkpoints", "policies"
+
+
+def manager(run_dir: str | Path, keep: int | None = None, folder: str = FULL) -> Manager:
+    """The run's checkpoints (``folder``: ``FULL`` training states, or ``POLICIES``); ``keep``: how many of the
+    newest a save leaves (None: all)."""
     return Manager(
-        Path(run_dir).absolute() / "checkpoints", item_handlers=ocp.StandardCheckpointHandler(),
-        options=ocp.CheckpointManagerOptions(max_to_keep=None, create=True, enable_async_checkpointing=False),
+        Path(run_dir).absolute() / folder, item_handlers=ocp.StandardCheckpointHandler(),
+        options=ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, enable_async_checkpointing=False),
     )
+
+
+def policy_manager(run_dir: str | Path) -> Manager | None:
+    """RUN/policies' manager, or None where the run has none (trained before policies were kept apart)."""
+    return manager(run_dir, folder=POLICIES) if (Path(run_dir) / POLICIES).is_dir() else None
 
 
 def _empty(x) -> bool:
@@ -116,13 +129,20 @@ def record_layout(run_dir: str | Path, lay: dict, update: int) -> None:
 
 
 # ------------------------------------------------------------------------------------------- save/restore
-def save(mgr: ocp.CheckpointManager, step: int, state) -> None:
+def save(mgr: ocp.CheckpointManager, step: int, state, **metadata) -> None:
     """Write atomically (Orbax writes to a temporary folder and renames it when complete); the checkpoint's
-    metadata records the device layout it was saved on."""
+    metadata records the device layout it was saved on (and ``metadata``)."""
     if step in mgr.all_steps():
         return
-    mgr.save(int(step), args=ocp.args.StandardSave(_fill_empty(state)), custom_metadata={"layout": layout(state)})
+    mgr.save(int(step), args=ocp.args.StandardSave(_fill_empty(state)),
+             custom_metadata={"layout": layout(state), **metadata})
     mgr.wait_until_finished()
+
+
+def save_policy(mgr: ocp.CheckpointManager, step: int, policy: dict, config: dict) -> None:
+    """The delivered policy of checkpoint ``step`` (``runs.policy_tree``: the co-policy's and psi's parameters and
+    the observation normaliser, seed axis first), with the run's config in its metadata."""
+    save(mgr, step, policy, config=config)
 
 
 class BackgroundSaver:
@@ -134,10 +154,11 @@ class BackgroundSaver:
     then stops the thread. Each checkpoint is still atomic (``save``): a run killed mid-write resumes from the
     previous one."""
 
-    def __init__(self, mgr: ocp.CheckpointManager):
+    def __init__(self, mgr: ocp.CheckpointManager, policies: ocp.CheckpointManager | None = None,
+                 config: dict | None = None):
         from concurrent.futures import ThreadPoolExecutor
 
-        self.mgr = mgr
+        self.mgr, self.policies, self.config = mgr, policies, config or {}
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="checkpoint")
         self._pending = []
 
@@ -147,14 +168,22 @@ class BackgroundSaver:
 
     MAX_PENDING = 2  # copies queued at most (a slower disk makes training wait rather than fill device memory)
 
-    def submit(self, step: int, copy) -> None:
+    def _save(self, step: int, copy, policy) -> None:
+        if policy is not None and self.policies is not None:
+            save_policy(self.policies, step, policy, self.config)
+        save(self.mgr, step, copy)
+
+    def submit(self, step: int, copy, policy=None) -> None:
+        """Queue checkpoint ``step``: the training state ``copy`` and, with a policy manager, its delivered
+        ``policy`` (written first: a run killed between the two resumes from the previous state and writes the
+        same policy again)."""
         while len(self._pending) >= self.MAX_PENDING:
             self._pending.pop(0).result()
         done = [f for f in self._pending if f.done()]
         self._pending = [f for f in self._pending if not f.done()]
         for f in done:  # an earlier save's error surfaces at the next checkpoint
             f.result()
-        self._pending.append(self._pool.submit(save, self.mgr, step, copy))
+        self._pending.append(self._pool.submit(self._save, step, copy, policy))
 
     def wait(self) -> None:
         pending, self._pending = self._pending, []

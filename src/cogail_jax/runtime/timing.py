@@ -15,6 +15,10 @@ Phases, in seconds (``PHASES``):
   are in ``eval_parts`` (``EVAL_PARTS``);
 * ``write``: writing results.json / results.md and the figures.
 
+``compiles`` (``CompileLog``): every XLA compilation of the command (JAX's monitoring events), by program: how
+many, and their seconds (a persistent-cache hit counts its load); ``trace`` the seconds spent tracing and lowering
+them. ``cogail bench --phases RUN`` tabulates them with the phases.
+
 ``total`` is the wall-clock of the commands (set-up included, so a little more than the phases' sum). A resumed
 training adds its seconds to the earlier ones; an evaluation replaces the earlier evaluation's. The record also
 holds the training's env steps/s after compilation, the device and whether deterministic GPU execution was on.
@@ -23,6 +27,7 @@ from __future__ import annotations
 
 import json
 import statistics
+import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -45,6 +50,45 @@ EVAL_PARTS = ("setup", "checkpoints", "extra_sets", "prepared")
 TRAIN_PARTS = ("bc_run", "chunk_compile", "compile_wait", "calls", "median_call", "checkpoint_excess",
                "other_excess")
 FILE = "speed.json"
+
+
+class CompileLog:
+    """Every compilation of this process from the moment it is made, by program name, from JAX's monitoring events:
+    ``backend`` (XLA's compilation, or the persistent cache's load) and ``trace`` (tracing and lowering to MLIR).
+    ``table()``: {name: {"count", "backend", "trace"}} (seconds), largest first. One listener serves every log (a
+    log only reads the events recorded since it was made)."""
+
+    _events: list = []
+    _registered = False
+    _lock = threading.Lock()
+    BACKEND = "/jax/core/compile/backend_compile_duration"
+    TRACE = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration")
+
+    def __init__(self) -> None:
+        cls = type(self)
+        with cls._lock:
+            if not cls._registered:
+                import jax
+
+                jax.monitoring.register_event_duration_secs_listener(cls._listen)
+                cls._registered = True
+            self._start = len(cls._events)
+
+    @classmethod
+    def _listen(cls, event: str, seconds: float, **kw) -> None:
+        if event == cls.BACKEND or event in cls.TRACE:
+            cls._events.append((event, str(kw.get("fun_name", "?")), float(seconds)))
+
+    def table(self) -> dict:
+        out: dict = {}
+        for event, name, secs in type(self)._events[self._start:]:
+            row = out.setdefault(name, {"count": 0, "backend": 0.0, "trace": 0.0})
+            if event == self.BACKEND:
+                row["count"] += 1
+                row["backend"] += secs
+            else:
+                row["trace"] += secs
+        return dict(sorted(out.items(), key=lambda kv: -(kv[1]["backend"] + kv[1]["trace"])))
 
 
 class Phases:
@@ -132,8 +176,17 @@ def _finish(rec: dict) -> dict:
     return rec
 
 
+def _merge_compiles(old: dict | None, new: dict | None) -> dict:
+    out = {k: dict(v) for k, v in (old or {}).items()}
+    for name, row in (new or {}).items():
+        o = out.setdefault(name, {"count": 0, "backend": 0.0, "trace": 0.0})
+        for k in ("count", "backend", "trace"):
+            o[k] = o.get(k, 0) + row.get(k, 0)
+    return dict(sorted(out.items(), key=lambda kv: -(kv[1]["backend"] + kv[1]["trace"])))
+
+
 def merge_train(old: dict, clock: Phases, steady_steps: int, steady_seconds: float, resumed: bool,
-                parts: dict | None = None, **info) -> dict:
+                parts: dict | None = None, compiles: dict | None = None, **info) -> dict:
     """The record after a training call: ``clock``'s training phases (added to ``old``'s when ``resumed``, else
     replacing ``old``), the env steps and seconds after compilation, ``parts`` (``TRAIN_PARTS``, this call's:
     they replace ``old``'s) and ``info`` (task, device, ...)."""
@@ -147,14 +200,17 @@ def merge_train(old: dict, clock: Phases, steady_steps: int, steady_seconds: flo
     secs = float(rec.get("seconds_after_compile", 0.0)) + float(steady_seconds)
     rec.update(info, phases=phases, wall=wall, train_env_steps=steps, seconds_after_compile=secs,
                env_steps_per_s=steps / secs if steps and secs > 0 else None,
-               train_parts={p: float((parts or {}).get(p, 0.0)) for p in TRAIN_PARTS})
+               train_parts={p: float((parts or {}).get(p, 0.0)) for p in TRAIN_PARTS},
+               compiles=_merge_compiles(rec.get("compiles"), compiles))
     return _finish(rec)
 
 
-def merge_eval(old: dict, clock: Phases, parts: Phases | None = None, **info) -> dict:
+def merge_eval(old: dict, clock: Phases, parts: Phases | None = None, compiles: dict | None = None,
+               **info) -> dict:
     """The record after an evaluation: ``clock``'s eval and write phases (and ``parts``' ``EVAL_PARTS`` of the eval
-    phase) replace ``old``'s."""
+    phase) replace ``old``'s; ``compiles`` (the evaluation's) are added to the training's."""
     rec = dict(old)
+    rec["compiles"] = _merge_compiles(rec.get("compiles"), compiles)
     phases = dict(rec.get("phases", {}))
     phases.update({p: clock.seconds.get(p, 0.0) for p in EVAL_PHASES})
     rec.update(info, phases=phases, wall={**rec.get("wall", {}), "eval": clock.elapsed()},
@@ -204,5 +260,34 @@ def parts_table(records: list[tuple[str, dict]]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["PHASES", "Phases", "mark_process_start", "compile_estimate", "call_parts", "read", "write", "merge_train",
+def compiles_table(records: list[tuple[str, dict]], top: int = 12) -> str:
+    """A markdown table, one row per program compiled in any of the runs (``compiles`` of their speed.json): its
+    compilations and seconds (XLA, tracing) per run; the ``top`` costliest programs of the first run lead."""
+    names: list[str] = []
+    for _, rec in records:
+        for n in rec.get("compiles") or {}:
+            if n not in names:
+                names.append(n)
+    cost = {n: max((rec.get("compiles") or {}).get(n, {}).get("backend", 0.0) for _, rec in records) for n in names}
+    names = sorted(names, key=lambda n: -cost[n])
+    head = ["program", *(f"{name}: n / XLA s / trace s" for name, _ in records)]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    rest = names[top:]
+    for n in names[:top]:
+        cells = []
+        for _, rec in records:
+            r = (rec.get("compiles") or {}).get(n)
+            cells.append("-" if not r else f"{r['count']} / {r['backend']:.1f} / {r['trace']:.1f}")
+        lines.append("| " + " | ".join([f"`{n}`", *cells]) + " |")
+    if rest or names:
+        cells = []
+        for _, rec in records:
+            c = rec.get("compiles") or {}
+            tot = [sum(c.get(n, {}).get(k, 0) for n in names) for k in ("count", "backend", "trace")]
+            cells.append(f"{tot[0]} / {tot[1]:.1f} / {tot[2]:.1f}")
+        lines.append("| " + " | ".join([f"all {len(names)} programs", *cells]) + " |")
+    return "\n".join(lines)
+
+
+__all__ = ["PHASES", "Phases", "CompileLog", "compiles_table", "mark_process_start", "compile_estimate", "call_parts", "read", "write", "merge_train",
            "merge_eval", "device_info", "EVAL_PARTS", "TRAIN_PARTS", "phases_table", "parts_table"]

@@ -1,0 +1,112 @@
+"""What a user's first `make train` costs: per task, the same two commands as `make train TASK=T` (`cogail data`, then
+`cogail train ... --eval`), timed from the shell,
+
+* ``cold``: a fresh compilation cache and a fresh data folder (nothing made, nothing compiled);
+* ``warm``: the same commands again, into a new run folder;
+* ``new-config``: a config not trained before (``--set bc_coef=5``), with the datasets on disk,
+
+then the run folders' sizes (without tb/), whether the cold and warm results.json are the same file, and the
+phases and compilations of each run (``cogail bench --phases``).
+
+    python experiments/first_run.py --tasks fetchq,handover,seqmanip --out runs/first-run
+
+Everything goes under ``--out``: ``cache/`` and ``data/`` (set as $COGAIL_CACHE and $COGAIL_DATA for the commands),
+one run folder per task and case, and ``first_run.md`` / ``first_run.json`` with the table.
+"""
+from __future__ import annotations
+
+import argparse
+import filecmp
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+CASES = (("cold", ()), ("warm", ()), ("new-config", ("--set", "bc_coef=5")))
+
+
+def folder_mb(path: Path, skip: str = "tb") -> float:
+    """Megabytes of the files under ``path``, leaving out its ``skip`` folder."""
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file() and skip not in p.relative_to(path).parts[:1]
+               ) / 1e6
+
+
+def timed(args: list[str], env: dict, log: Path) -> float:
+    t0 = time.perf_counter()
+    with log.open("a") as f:
+        f.write(f"$ {' '.join(args)}\n")
+        f.flush()
+        r = subprocess.run(args, env=env, stdout=f, stderr=subprocess.STDOUT)
+    if r.returncode:
+        sys.exit(f"{' '.join(args)} failed (exit {r.returncode}): see {log}")
+    return time.perf_counter() - t0
+
+
+def run_task(task: str, out: Path, seeds: str, budget: str, cases=tuple(c for c, _ in CASES)) -> list[dict]:
+    env = {**os.environ, "COGAIL_CACHE": str(out / "cache"), "COGAIL_DATA": str(out / "data")}
+    cogail = [sys.executable, "-m", "cogail_jax.apps.cli"]
+    common = ["--task", task, "--budget", budget, "--seeds", seeds]
+    rows = []
+    for case, extra in CASES:
+        if case not in cases:
+            continue
+        run = out / f"{task}-{case}"
+        shutil.rmtree(run, ignore_errors=True)
+        log = out / f"{task}-{case}.log"
+        log.unlink(missing_ok=True)
+        t_data = timed([*cogail, "data", *common, *extra], env, log)
+        t_train = timed([*cogail, "train", *common, *extra, "--run", str(run), "--eval", "--no-progress"], env, log)
+        speed = json.loads((run / "speed.json").read_text())
+        rows.append({"task": task, "case": case, "data_s": t_data, "train_s": t_train, "total_s": t_data + t_train,
+                     "run_mb": folder_mb(run), "phases": speed.get("phases"), "run": str(run)})
+        print(f"{task} {case}: data {t_data:.1f} s + train {t_train:.1f} s = {t_data + t_train:.1f} s, "
+              f"run folder {rows[-1]['run_mb']:.1f} MB", flush=True)
+    same = ("cold" in cases and "warm" in cases
+            and filecmp.cmp(out / f"{task}-cold" / "results.json", out / f"{task}-warm" / "results.json", shallow=False))
+    for r in rows:
+        r["cold_warm_results_identical"] = same
+    return rows
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| task | case | `cogail data` s | `cogail train --eval` s | whole s | run folder MB (no tb/) | "
+             "phases: start / demos / bc / compile / train / eval / write |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        ph = r["phases"] or {}
+        split = " / ".join(f"{ph.get(p, 0):.1f}" for p in ("start", "demos", "bc", "compile", "train", "eval", "write"))
+        lines.append(f"| {r['task']} | {r['case']} | {r['data_s']:.1f} | {r['train_s']:.1f} | **{r['total_s']:.1f}** | "
+                     f"{r['run_mb']:.1f} | {split} |")
+    same = {r["task"]: r["cold_warm_results_identical"] for r in rows}
+    lines += ["", "cold and warm results.json identical (byte for byte): "
+              + ", ".join(f"{t} {'yes' if v else 'NO'}" for t, v in same.items())]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--tasks", default="fetchq", help="comma-separated task names")
+    p.add_argument("--out", default="runs/first-run", help="folder for the caches, data, runs and the table")
+    p.add_argument("--seeds", default="300,400,500")
+    p.add_argument("--budget", default="paper")
+    p.add_argument("--cases", default="cold,warm,new-config", help="which of cold, warm, new-config to run, in order")
+    a = p.parse_args(argv)
+    out = Path(a.out).absolute()
+    for d in ("cache", "data"):  # cold means cold: nothing compiled or made before
+        shutil.rmtree(out / d, ignore_errors=True)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for task in [t for t in a.tasks.split(",") if t]:
+        rows += run_task(task, out, a.seeds, a.budget, tuple(a.cases.split(",")))
+        (out / "first_run.json").write_text(json.dumps(rows, indent=1))
+    from cogail_jax.apps.bench import phases_report
+
+    report = table(rows) + "\n\n" + phases_report([r["run"] for r in rows])
+    (out / "first_run.md").write_text(report + "\n")
+    print(report)
+
+
+if __name__ == "__main__":
+    main()

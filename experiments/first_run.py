@@ -64,6 +64,7 @@ def run_task(task: str, out: Path, seeds: str, budget: str, cases=tuple(c for c,
                      "run_mb": folder_mb(run), "phases": speed.get("phases"), "run": str(run)})
         print(f"{task} {case}: data {t_data:.1f} s + train {t_train:.1f} s = {t_data + t_train:.1f} s, "
               f"run folder {rows[-1]['run_mb']:.1f} MB", flush=True)
+        (out / f"{task}-{case}.json").write_text(json.dumps(rows[-1], indent=1))
     same = ("cold" in cases and "warm" in cases
             and filecmp.cmp(out / f"{task}-cold" / "results.json", out / f"{task}-warm" / "results.json", shallow=False))
     for r in rows:

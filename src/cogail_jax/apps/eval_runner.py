@@ -301,9 +301,10 @@ SWITCH_INTERVAL = 2e-4  # seconds: how soon a thread waiting for Python's lock g
 class EvalPrep:
     """``cogail train --eval``'s evaluation made ready while training runs, when the host is idle and the device
     busy: in a background thread, the test, validation and varied-human sets are loaded and the evaluation
-    programs traced and compiled (``EvalInputs``). ``start`` starts it (``train_run``'s ``on_compiled``: as BC
-    starts on a fresh one-device run, beside the training program's compilation; else after the first training
-    call); ``result()`` waits for it. A preparation that fails prints a warning, and ``eval_run`` then
+    programs traced and compiled (``EvalInputs``). ``start`` starts it once the training program has compiled
+    (``train_run``'s ``on_compiled``: while BC runs on a fresh one-device run, else after the first training call;
+    started beside the training program's compilation instead, it slowed that compilation, on the critical path,
+    by more than it saved: docs/notes.md); ``result()`` waits for it. A preparation that fails prints a warning, and ``eval_run`` then
     prepares again itself (raising the error, if it is one, where it belongs)."""
 
     def __init__(self, run_dir: str | Path, robustness: bool = True, extra_curves: bool = False,

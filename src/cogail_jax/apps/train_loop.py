@@ -86,17 +86,14 @@ def _abstract(tree):
 
 
 def _compile_during_bc(s: Setup, state, on_compiled, seconds: dict) -> threading.Thread:
-    """A background thread, started: ``on_compiled(s, state)`` (``EvalPrep.start``: the evaluation's sets and
-    programs, in a thread of its own), then the training chunk compiled for ``state``'s shapes. The main thread
-    meanwhile runs BC: a long device loop that the GPU runtime drives from the calling thread, which holds no
-    Python lock then; XLA compiles the two programs side by side. A failure only costs the time: the first
+    """A background thread, started: the training chunk compiled for ``state``'s shapes, then ``on_compiled(s,
+    state)`` (``EvalPrep.start``). The main thread meanwhile runs BC: a long device loop that the GPU runtime
+    drives from the calling thread, which holds no Python lock then. A failure only costs the time: the first
     training call compiles the chunk (and raises the error) itself. ``seconds["chunk_compile"]``: how long the
     compilation took."""
     abstract = _abstract(state)
 
     def work():
-        if on_compiled is not None:
-            on_compiled(s, abstract)
         t0 = time.perf_counter()
         try:
             s.chunk.lower(abstract, s.expert).compile()
@@ -104,6 +101,8 @@ def _compile_during_bc(s: Setup, state, on_compiled, seconds: dict) -> threading
             return
         finally:
             seconds["chunk_compile"] = time.perf_counter() - t0
+        if on_compiled is not None:
+            on_compiled(s, abstract)
 
     t = threading.Thread(target=work, name="compile-during-bc", daemon=True)
     t.start()
@@ -142,8 +141,7 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
     state, s.expert = place_on_devices(state, s.expert, devices, len(cfg.seeds))
     here = ckpt.layout(state)
     if fresh:
-        ckpt.save_policy(ckpt.manager(run_dir, folder=ckpt.POLICIES), 0, _eval_tree(state), json.loads(cfg.to_json()))
-        ckpt.save(mgr, 0, state)
+        ckpt.save(mgr, 0, state)  # (no policy: evaluation starts at the first training checkpoint)
     else:
         saved = ckpt.saved_layout(mgr, start) or ckpt.run_layout(run_dir)
         if saved and (saved.get("device_count"), saved.get("device_kind")) != (here["device_count"],

@@ -129,3 +129,26 @@ def test_every_command_sets_up_the_cache_unless_told_not_to(extra, want, tmp_pat
     for cmd in (["report", "--run", str(tmp_path / "none")], ["eval", "--run", str(tmp_path / "none")]):
         assert cli.main([*cmd, *extra]) == 2  # parses, sets up, then fails: not a run
     assert calls == [want, want]
+
+
+def test_compile_log_counts_each_program_once_and_merges_into_the_record():
+    import jax
+    import jax.numpy as jnp
+
+    from cogail_jax.runtime import programs
+
+    log = timing.CompileLog()
+    f = programs.stored(lambda x: jnp.cos(x) + 3.0, "timing_probe", "test_timing")
+    f(jnp.ones(5))
+    f(jnp.ones(5))  # the same program: no second compilation
+    jax.jit(lambda x: x * 7.0)(jnp.ones(2))
+    table = log.table()
+    probe = table["timing_probe"]  # its tracing and its compilation in one row
+    assert probe["count"] == 1 and probe["backend"] > 0 and probe["trace"] > 0
+    assert timing.CompileLog().table() == {}  # a new log reads only what happens after it
+    rec = timing.merge_train({}, _clock(train=1.0), 10, 1.0, False, compiles=table)
+    rec = timing.merge_eval(rec, _clock(eval=1.0), compiles={"timing_probe": {"count": 2, "backend": 1.0,
+                                                                                "trace": 0.5}})
+    assert rec["compiles"]["timing_probe"]["count"] == 3  # the evaluation's compilations add to the training's
+    md = timing.compiles_table([("a", rec)])
+    assert "`timing_probe` | 3 / " in md and md.splitlines()[-1].startswith("| all ")

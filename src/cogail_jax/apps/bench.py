@@ -183,12 +183,14 @@ def add_arguments(p) -> None:
                         "recent NVIDIA GPUs), to see how much of the update is matmul work")
     p.add_argument("--phases", nargs="+", default=None, metavar="RUN",
                    help="benchmark nothing: print the seconds of each phase (demos, bc, compile, train, eval, "
-                        "write, total) of these runs, read from RUN/speed.json, as a markdown table")
+                        "write, total) of these runs, their parts, and every program they compiled (count, XLA and "
+                        "tracing seconds), read from RUN/speed.json, as markdown tables")
 
 
 def phases_report(runs) -> str:
-    """The markdown tables of the runs' RUN/speed.json: seconds per phase (``timing.phases_table``) and the
-    phases' parts (``timing.parts_table``); a run without one is an error."""
+    """The markdown tables of the runs' RUN/speed.json: seconds per phase (``timing.phases_table``), the phases'
+    parts (``timing.parts_table``) and the compiled programs (``timing.compiles_table``); a run without one is an
+    error."""
     from ..runtime import timing
     from .runs import RunError
 

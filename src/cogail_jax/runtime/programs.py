@@ -207,6 +207,8 @@ class Stored:
             out_trees.append(out_tree)
             return out_leaves
 
+        flat.__name__ = flat.__qualname__ = self.name  # what JAX's compile events and speed.json call its tracing
+
         specs = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
         try:
             exp = jax.export.export(jax.jit(flat), disabled_checks=[

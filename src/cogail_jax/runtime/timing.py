@@ -77,7 +77,10 @@ class CompileLog:
     @classmethod
     def _listen(cls, event: str, seconds: float, **kw) -> None:
         if event == cls.BACKEND or event in cls.TRACE:
-            cls._events.append((event, str(kw.get("fun_name", "?")), float(seconds)))
+            name = str(kw.get("fun_name", "?"))
+            if name.startswith("jit(") and name.endswith(")"):  # one row per program: its trace and compilation
+                name = name[4:-1]
+            cls._events.append((event, name, float(seconds)))
 
     def table(self) -> dict:
         out: dict = {}
@@ -268,7 +271,8 @@ def compiles_table(records: list[tuple[str, dict]], top: int = 12) -> str:
         for n in rec.get("compiles") or {}:
             if n not in names:
                 names.append(n)
-    cost = {n: max((rec.get("compiles") or {}).get(n, {}).get("backend", 0.0) for _, rec in records) for n in names}
+    cost = {n: max(sum((rec.get("compiles") or {}).get(n, {}).get(k, 0.0) for k in ("backend", "trace"))
+                   for _, rec in records) for n in names}
     names = sorted(names, key=lambda n: -cost[n])
     head = ["program", *(f"{name}: n / XLA s / trace s" for name, _ in records)]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]

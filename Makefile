@@ -73,12 +73,16 @@ test: install
 clean:
 	rm -rf runs .pytest_cache
 
-# The paper's tables (Table 1 replay, Table 2 interpolation, Fig. 3) for TASKS x METHODS, 3 seeds each.
+# The paper's tables (Table 1 replay, Table 2 interpolation, Fig. 3) for TASKS x METHODS, 3 seeds each; the jobs run
+# one per GPU over GPUS (all visible ones by default), the rest queued; SHARD=i/n runs the i-th of n hosts' share.
 TASKS ?= fetchq
 METHODS ?= cogail,ma_infogail,ma_gail,bc_gail,bc_single,diayn
 MIXES ?= uniform
+GPUS ?= all
+SHARD ?=
 paper: install
-	$(BIN)/python experiments/paper.py --tasks $(TASKS) --methods $(METHODS) --mixes $(MIXES) --out results/paper
+	$(BIN)/python experiments/paper.py --tasks $(TASKS) --methods $(METHODS) --mixes $(MIXES) --out results/paper \
+	  --gpus $(GPUS) $(if $(SHARD),--shard $(SHARD),)
 
 # The throughput table of TASK, then the seconds per phase (start, demos, bc, compile, train, eval, write) of every
 # run under runs/ that has a speed.json (e.g. the `make train` runs of each task).

@@ -19,6 +19,12 @@ MJX tasks, ``patient-val-robust-*`` beside ``patient-validation``), for every ru
 between ``<!-- results:begin -->`` and ``<!-- results:end -->`` in FILE with the same tables; ``--tables-only``
 trains nothing and only rewrites the tables (and the README block) from ``<out>/paper.json``.
 
+Jobs (one per task x method x mixture) run one per GPU: with several GPUs visible (``--gpus all``, the
+default, or ``--gpus N``) each job is a process of its own on one GPU (``CUDA_VISIBLE_DEVICES``), at most one per
+GPU at a time and the rest queued, its results in ``<out>/jobs/<task>-<method>-<mix>/`` and merged into
+``<out>/paper.json`` as it ends. ``--shard i/n`` runs only every n-th job from the i-th (0-based), so that n hosts
+share the grid; ``--merge`` then joins their ``paper.json``.
+
 GPU execution is deterministic (XLA_FLAGS ``--xla_gpu_deterministic_ops=true``) unless ``--nondeterministic``.
 """
 from __future__ import annotations
@@ -27,7 +33,10 @@ import argparse
 import hashlib
 import json
 import os
+import shutil
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
@@ -105,6 +114,89 @@ def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1,
                            extra_sets=validation_robustness_sets(task, mix))
     return {**{k: res[k] for k in KEEP if k in res}, "config_hash": config_hash(cfg), "run": str(run),
             "eval_every": every}
+
+
+# ----------------------------------------------------------------------------------------------- sweeps
+def gpu_count(env=None) -> int:
+    """The NVIDIA GPUs this process may use: CUDA_VISIBLE_DEVICES's entries where it is set, else ``nvidia-smi
+    -L``'s; 0 without any."""
+    env = os.environ if env is None else env
+    if "CUDA_VISIBLE_DEVICES" in env:
+        return len([d for d in env["CUDA_VISIBLE_DEVICES"].split(",") if d.strip() and d.strip() != "-1"])
+    if not shutil.which("nvidia-smi"):
+        return 0
+    try:
+        out = subprocess.run(["nvidia-smi", "-L"], capture_output=True, text=True, timeout=20).stdout
+    except (OSError, subprocess.SubprocessError):
+        return 0
+    return sum(line.startswith("GPU ") for line in out.splitlines())
+
+
+def gpu_slots(spec: str, env=None) -> list[str]:
+    """The GPU ids jobs run on: ``all`` (every visible GPU; one slot, in this process, without any) or a number."""
+    env = os.environ if env is None else env
+    visible = [d.strip() for d in env.get("CUDA_VISIBLE_DEVICES", "").split(",") if d.strip()]
+    n = gpu_count(env)
+    ids = visible if visible else [str(i) for i in range(n)]
+    if spec == "all":
+        return ids or ["-"]
+    if not spec.isdigit() or int(spec) < 1:
+        raise SystemExit(f"--gpus {spec}: give a number of GPUs (1 or more) or all")
+    k = int(spec)
+    if ids and k > len(ids):
+        raise SystemExit(f"--gpus {k}: only {len(ids)} GPU(s) are visible; give at most {len(ids)} or all")
+    return ids[:k] if ids else [str(i) for i in range(k)]
+
+
+def shard_jobs(jobs: list, spec: str | None) -> list:
+    """Every n-th job from the i-th (``spec`` "i/n", 0 <= i < n), in order; all of them for None."""
+    if not spec:
+        return list(jobs)
+    try:
+        i, n = (int(x) for x in spec.split("/"))
+        if not 0 <= i < n:
+            raise ValueError
+    except ValueError:
+        raise SystemExit(f"--shard {spec}: give i/n with 0 <= i < n, e.g. 0/2 on the first of two hosts")
+    return list(jobs)[i::n]
+
+
+def run_jobs(jobs: list, slots: list[str], launch, poll: float = 0.5):
+    """Run ``jobs`` at most one per slot at a time, in order, each as ``launch(job, slot)`` (a process: ``poll()``
+    None while it runs, else its exit code); yields ``(job, exit code)`` as each ends."""
+    queue, free, running = list(jobs), list(slots), {}
+    while queue or running:
+        while queue and free:
+            slot = free.pop(0)
+            job = queue.pop(0)
+            running[slot] = (job, launch(job, slot))
+        ended = [(slot, job, proc.poll()) for slot, (job, proc) in running.items() if proc.poll() is not None]
+        for slot, job, code in ended:
+            del running[slot]
+            free.append(slot)
+            yield job, code
+        if not ended:
+            time.sleep(poll)
+
+
+def job_name(job) -> str:
+    return "-".join(job)
+
+
+def job_argv(a, job, out: Path) -> list[str]:
+    """The command of one job of this sweep (its own process, one GPU): this script on that one task x method x
+    mixture, with the sweep's other options, into ``out``."""
+    t, m, mix = job
+    argv = [sys.executable, str(Path(__file__).resolve()), "--tasks", t, "--methods", m, "--mixes", mix,
+            "--out", str(out), "--gpus", "1", "--seeds", a.seeds, "--eval-every", str(a.eval_every)]
+    for item in a.set:
+        argv += ["--set", item]
+    for flag, on in (("--force", a.force), ("--nondeterministic", a.nondeterministic),
+                     ("--no-compile-cache", a.no_compile_cache)):
+        argv += [flag] if on else []
+    argv += ["--label", a.label] if a.label else []
+    argv += ["--ckpt-batch", str(a.ckpt_batch)] if a.ckpt_batch else []
+    return argv
 
 
 # ----------------------------------------------------------------------------------------------- tables
@@ -496,6 +588,12 @@ def main(argv=None) -> int:
                    help="train nothing: rewrite the tables (and --readme's block) from <out>/paper.json")
     p.add_argument("--readme", default=None, metavar="FILE",
                    help=f"also write the tables into FILE between {BEGIN} and {END}")
+    p.add_argument("--gpus", default="all", metavar="N|all",
+                   help="run the jobs one per GPU over this many GPUs (default: every visible one), each a process "
+                        "of its own, the rest queued; with one GPU (or none) they run one after another here")
+    p.add_argument("--shard", default=None, metavar="i/n",
+                   help="run only every n-th job from the i-th (0-based), e.g. 0/2 and 1/2 on two hosts; join "
+                        "their results with --merge")
     p.add_argument("--nondeterministic", action="store_true", help="allow nondeterministic GPU kernels")
     p.add_argument("--no-compile-cache", action="store_true",
                    help="do not keep compiled programs between runs (as `cogail train --no-compile-cache`)")
@@ -518,6 +616,7 @@ def main(argv=None) -> int:
                 results.update(json.loads((Path(d) / "paper.json").read_text()))
         tables(results, *table_axes(results, [], []), out, readme)
         tasks = []
+    todo = []
     for t in tasks:
         for m in methods:
             for mix in (a.mixes.split(",") if t == "fetchq" else ["uniform"]):
@@ -528,15 +627,47 @@ def main(argv=None) -> int:
                     print(f"{t:9} {m:12} {mix:8} already in {out / 'paper.json'} (same config {h}; --force to "
                           f"evaluate again)", flush=True)
                     continue
-                res = run_one(t, m, mix, seeds, out, extra, a.eval_every, a.ckpt_batch)
-                results[key] = res
-                sel, pp = figures(res, "replay"), figures(res, "interpolation")
-                print(f"{t:9} {m:12} {mix:8} replay {sel[0]} (paper protocol {sel[1]})  interp {pp[0]} "
-                      f"(paper protocol {pp[1]})", flush=True)
-                tables(results, *table_axes(results, tasks, methods), out, readme)
+                todo.append((t, m, mix))
+    todo = shard_jobs(todo, a.shard)
+    slots = gpu_slots(a.gpus)
+    failed = []
+    if len(slots) > 1 and len(todo) > 1:  # one process per job, one job per GPU at a time
+        def where(job):  # the job's folder and log
+            name = job_name(job) + (f"-{a.label}" if a.label else "")
+            return out / "jobs" / name, out / "jobs" / f"{name}.log"
+
+        def launch(job, slot):
+            folder, log = where(job)
+            log.parent.mkdir(parents=True, exist_ok=True)
+            print(f"{' '.join(job):30} started on GPU {slot} (log: {log})", flush=True)
+            return subprocess.Popen(job_argv(a, job, folder), stdout=log.open("w"), stderr=subprocess.STDOUT,
+                                    env={**os.environ, "CUDA_VISIBLE_DEVICES": slot})
+
+        for job, code in run_jobs(todo, slots, launch):
+            folder, log = where(job)
+            got = folder / "paper.json"
+            if code or not got.is_file():
+                failed.append(job)
+                print(f"{' '.join(job):30} FAILED (exit {code}): see {log}", flush=True)
+                continue
+            results.update(json.loads(got.read_text()))
+            print(f"{' '.join(job):30} done", flush=True)
+            tables(results, *table_axes(results, tasks, methods), out, readme)
+    else:
+        for t, m, mix in todo:
+            key = f"{t}/{m}/{mix}" + (f"/{a.label}" if a.label else "")
+            res = run_one(t, m, mix, seeds, out, extra, a.eval_every, a.ckpt_batch)
+            results[key] = res
+            sel, pp = figures(res, "replay"), figures(res, "interpolation")
+            print(f"{t:9} {m:12} {mix:8} replay {sel[0]} (paper protocol {sel[1]})  interp {pp[0]} "
+                  f"(paper protocol {pp[1]})", flush=True)
+            tables(results, *table_axes(results, tasks, methods), out, readme)
     if (out / "table1_replay.md").exists():
         print((out / "table1_replay.md").read_text())
         print((out / "table2_interpolation.md").read_text())
+    if failed:
+        print(f"{len(failed)} job(s) failed: {', '.join(' '.join(j) for j in failed)}", file=sys.stderr)
+        return 1
     return 0
 
 

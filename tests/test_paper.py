@@ -261,3 +261,65 @@ def test_every_task_budget_is_a_valid_train_config():
             assert {k for k in cfg.__dataclass_fields__ if getattr(cfg, k) != getattr(base, k)} == set(over), (t, b)
     with pytest.raises(ConfigError, match="no budget 'huge'"):
         resolve("fetchq", "huge")
+
+
+def test_shard_and_gpu_slots():
+    jobs = list(range(7))
+    assert paper.shard_jobs(jobs, None) == jobs
+    assert paper.shard_jobs(jobs, "1/3") == [1, 4]
+    assert sorted(sum((paper.shard_jobs(jobs, f"{i}/3") for i in range(3)), [])) == jobs  # the shards cover the grid
+    with pytest.raises(SystemExit, match="--shard 3/3"):
+        paper.shard_jobs(jobs, "3/3")
+    two = {"CUDA_VISIBLE_DEVICES": "2,5"}
+    assert paper.gpu_slots("all", two) == ["2", "5"] and paper.gpu_slots("1", two) == ["2"]
+    with pytest.raises(SystemExit, match="only 2 GPU"):
+        paper.gpu_slots("3", two)
+    assert paper.gpu_slots("all", {"CUDA_VISIBLE_DEVICES": ""}) == ["-"]  # none: one slot, in this process
+
+
+def test_jobs_run_one_per_slot_and_queue():
+    class Proc:
+        def __init__(self, job, slot, polls):
+            self.job, self.slot, self.left = job, slot, polls
+
+        def poll(self):
+            self.left -= 1
+            return None if self.left > 0 else (3 if self.job == "bad" else 0)
+
+    running, most = {}, [0]
+
+    def launch(job, slot):
+        assert slot not in running.values()  # a slot runs one job at a time
+        running[job] = slot
+        most[0] = max(most[0], len(running))
+        return Proc(job, slot, polls=2 + len(job))
+
+    ended = []
+    for job, code in paper.run_jobs(["a", "bb", "bad", "c", "dddd"], ["g0", "g1"], launch, poll=0):
+        running.pop(job)
+        ended.append((job, code))
+    assert most[0] == 2 and sorted(ended) == sorted([("a", 0), ("bb", 0), ("bad", 3), ("c", 0), ("dddd", 0)])
+
+
+def test_sweep_merges_each_jobs_results_as_it_ends(tmp_path, monkeypatch):
+    """``--gpus 2``: every job a process of its own (here a stand-in that writes the job's paper.json; the ma_gail
+    job fails), merged into <out>/paper.json with the tables rewritten; a failed job makes the exit code 1."""
+    import sys
+
+    def fake_argv(a, job, out):
+        t, m, mix = job
+        res = json.dumps({f"{t}/{m}/{mix}": _res(0.55, 0.6)})
+        code = ("import sys; sys.exit(2)" if m == "ma_gail" else
+                f"import pathlib; p = pathlib.Path({str(out)!r}); p.mkdir(parents=True, exist_ok=True); "
+                f"(p / 'paper.json').write_text({res!r})")
+        return [sys.executable, "-c", code]
+
+    monkeypatch.setattr(paper, "job_argv", fake_argv)
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "0,1")  # two GPUs, whatever this machine has
+    out = tmp_path / "sweep"
+    rc = paper.main(["--tasks", "fetchq", "--methods", "cogail,ma_gail,diayn", "--out", str(out), "--gpus", "2"])
+    assert rc == 1
+    merged = json.loads((out / "paper.json").read_text())
+    assert set(merged) == {"fetchq/cogail/uniform", "fetchq/diayn/uniform"}
+    assert "| cogail | 55.0 +- 1.0 | 60.0 +- 2.0 |" in (out / "table1_replay.md").read_text()
+    assert (out / "jobs" / "fetchq-ma_gail-uniform.log").exists()

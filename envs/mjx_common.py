@@ -386,6 +386,21 @@ def guarded_physics_step(mx: mjx.Model, d: mjx.Data, ctrl: jax.Array,
     return jax.tree.map(lambda a, b: jnp.where(ok, a, b), nd, prev), ~ok
 
 
+# mjx.Data fields that ``mjx.forward`` writes before it reads them (the constraint rows, contacts, mass matrix and
+# its factor): a state with them zeroed steps to the same bits (tests/test_tasks.py). 52 % of a seqmanip env
+# state's bytes; ``efc_type`` is set once, at ``make_data``, and kept.
+RECOMPUTED = ("efc_J", "efc_D", "efc_aref", "efc_force", "efc_frictionloss", "efc_margin", "efc_pos", "contact", "M",
+              "qLD")
+
+
+def without_recomputed(d: mjx.Data) -> mjx.Data:
+    """``d`` with the ``RECOMPUTED`` fields zeroed (those this MJX version has): what a checkpoint stores."""
+    impl = getattr(d, "_impl", None)
+    names = set(getattr(impl, "__dataclass_fields__", ()))
+    zero = {f: jax.tree.map(jnp.zeros_like, getattr(impl, f)) for f in RECOMPUTED if f in names}
+    return d.replace(_impl=impl.replace(**zero)) if zero else d
+
+
 def make_data(m: mujoco.MjModel, mx: mjx.Model, qpos: jax.Array, ctrl: jax.Array, template: mjx.Data) -> mjx.Data:
     """A fresh ``mjx.Data`` at ``qpos`` (zero velocity) with ``ctrl``, after ``mjx.forward``."""
     d = template.replace(qpos=qpos, qvel=jnp.zeros_like(template.qvel), ctrl=ctrl)

@@ -36,13 +36,18 @@ def contract(request):
     a = jnp.zeros(env.action_size)
     s1 = step(s0, a)
     late = step(s0.replace(info={**s0.info, "t": s0.info["t"] + env.max_episode_steps - 1}), a)
-    out = jax.device_get((init, s0, s0b, s1, late, jax.jit(env.classify_strategy)(s1.metrics)))
+    # a checkpoint's env state (env.checkpoint_state) steps to the same bits as the state it was made from
+    acts = jax.random.uniform(jax.random.PRNGKey(1), (3, env.action_size), minval=-1, maxval=1)
+    ref, got = s1, env.checkpoint_state(s1)
+    for x in acts:
+        ref, got = step(ref, x), step(got, x)
+    out = jax.device_get((init, s0, s0b, s1, late, jax.jit(env.classify_strategy)(s1.metrics), (ref, got)))
     yield task, env, out
     monkey.undo()
 
 
 def test_env_contract_shapes_and_action_split(contract):
-    task, env, (init, s0, _, s1, _, _) = contract
+    task, env, (init, s0, _, s1, _, _, _) = contract
     assert env.name == task.name and env.action_size == env.human_action_size + env.robot_action_size
     assert env.human_action_size > 0 and env.robot_action_size > 0 and env.num_strategies == len(env.strategy_names)
     assert s0.obs.shape == (env.observation_size,) and s0.obs.dtype == np.float32 and np.all(np.isfinite(s0.obs))
@@ -55,6 +60,12 @@ def test_env_contract_shapes_and_action_split(contract):
     assert h.shape == (env.human_action_size,) and r.shape == (env.robot_action_size,)
 
 
+def test_env_contract_checkpoint_state_steps_to_the_same_bits(contract):
+    _, env, (*_, (ref, got)) = contract
+    for x, y in zip(jax.tree.leaves(ref), jax.tree.leaves(got)):
+        np.testing.assert_array_equal(x, y)
+
+
 def test_env_contract_reset_from_reproduces_the_start(contract):
     _, _, (_, s0, s0b, *_) = contract
     for x, y in zip(jax.tree.leaves(s0), jax.tree.leaves(s0b)):
@@ -63,14 +74,14 @@ def test_env_contract_reset_from_reproduces_the_start(contract):
 
 def test_env_contract_time_limit_is_a_truncation(contract):
     """``info["truncation"]`` is 1 when the time limit (not success or failure) ended the episode, 0 before."""
-    _, env, (_, s0, _, s1, late, _) = contract
+    _, env, (_, s0, _, s1, late, _, _) = contract
     assert int(s1.info["t"]) == 1 and float(s1.done) == 0.0 and float(s1.info["truncation"]) == 0.0
     assert int(late.info["t"]) == env.max_episode_steps
     assert float(late.done) == 1.0 and float(late.info["truncation"]) == 1.0 - float(late.metrics["success"])
 
 
 def test_env_contract_strategy_classification(contract):
-    *_, (_, _, _, s1, _, sid) = contract
+    *_, (_, _, _, s1, _, sid, _) = contract
     assert np.asarray(sid).dtype == np.int32 and np.shape(sid) == ()
     assert float(s1.metrics["success"]) == 0.0 and int(sid) == 0  # an episode that has not succeeded: no strategy
 

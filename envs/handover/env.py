@@ -190,6 +190,9 @@ class Handover(CollabEnv):
         return wait, jnp.zeros_like(a_h).at[6].set(-1.0)
 
     # ------------------------------------------------------------------ step
+    def checkpoint_state(self, state: State) -> State:
+        return state.replace(pipeline_state=mc.without_recomputed(state.pipeline_state))
+
     def step(self, state: State, action: jax.Array) -> State:
         h, r = self.human, self.robot
         info = state.info

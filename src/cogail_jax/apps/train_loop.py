@@ -109,6 +109,12 @@ def _compile_during_bc(s: Setup, state, on_compiled, seconds: dict) -> threading
     return t
 
 
+def _for_checkpoint(s: Setup, state):
+    """The training state as a checkpoint stores it: the env's states as ``env.checkpoint_state`` leaves them (MJX
+    tasks zero what their next step recomputes; resume stays bit-exact)."""
+    return state.replace(env_state=s.env.checkpoint_state(state.env_state))
+
+
 def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: timing.Phases, on_compiled=None,
                  parts: dict | None = None):
     """The state training starts from (restored on resume, else fresh with BC pre-training, timed as ``bc``),
@@ -141,7 +147,7 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
     state, s.expert = place_on_devices(state, s.expert, devices, len(cfg.seeds))
     here = ckpt.layout(state)
     if fresh:
-        ckpt.save(mgr, 0, state)  # (no policy: evaluation starts at the first training checkpoint)
+        ckpt.save(mgr, 0, _for_checkpoint(s, state))  # (no policy: evaluation starts at the first checkpoint)
     else:
         saved = ckpt.saved_layout(mgr, start) or ckpt.run_layout(run_dir)
         if saved and (saved.get("device_count"), saved.get("device_kind")) != (here["device_count"],
@@ -216,7 +222,7 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
                     on_compiled(s, state)
             u0, stats.update = stats.update, stats.update + upc
             at_ckpt = stats.update % cfg.checkpoint_every == 0 or stats.update >= total
-            copy = (stats.update, saver.copy(state)) if at_ckpt else None
+            copy = (stats.update, saver.copy(_for_checkpoint(s, state))) if at_ckpt else None
             if at_ckpt or (pending is not None and pending[2] is not None):  # copies one, or queues the last
                 stats.checkpoint_calls.add(len(stats.call_seconds))
             drain()

@@ -1,7 +1,7 @@
 """Orbax checkpoints of a run, portable across device layouts: RUN/checkpoints/ holds whole (seed-stacked)
 TrainStates, for exact resume (the newest, plus as many as the user keeps: ``manager(run, keep=...)``);
 RUN/policies/ holds, at every checkpoint, the delivered policy only (what evaluation, play and video read:
-``save_policy`` / ``restore_policy``).
+``save_policy``, restored like any checkpoint).
 
 A checkpoint is restored onto the devices of the process that loads it, whatever device kind or count saved it
 (a run trained on GPUs is evaluated, played and resumed on a CPU, on fewer devices or on more). A checkpoint that
@@ -140,8 +140,8 @@ def save(mgr: ocp.CheckpointManager, step: int, state, **metadata) -> None:
 
 
 def save_policy(mgr: ocp.CheckpointManager, step: int, policy: dict, config: dict) -> None:
-    """The delivered policy of checkpoint ``step`` (``runs.policy_tree``: the co-policy's and psi's parameters and
-    the observation normaliser, seed axis first), with the run's config in its metadata."""
+    """The delivered policy of checkpoint ``step`` (``apps.runs._eval_tree``: the co-policy's and psi's parameters
+    and the observation normaliser, seed axis first), with the run's config in its metadata."""
     save(mgr, step, policy, config=config)
 
 

@@ -103,6 +103,6 @@ def test_default_demos_of_another_size_get_their_own_file(fetchq, tmp_path, monk
 def test_ten_thousand_demos_one_call(fetchq):
     from cogail_jax.data import generate as demos
 
-    eps = demos.generate(fetchq, 10000, seed=2)
+    eps = demos.generate(fetchq, 10000, seed=2, batch=10000)  # the generator at a width of 10000 episodes
     assert eps.obs.shape[0] == 10000 and eps.success.mean() > 0.99
 

@@ -132,32 +132,32 @@ def gpu_count(env=None) -> int:
     return sum(line.startswith("GPU ") for line in out.splitlines())
 
 
-def gpu_slots(spec: str, env=None) -> list[str]:
+def gpu_slots(gpus: str, env=None) -> list[str]:
     """The GPU ids jobs run on: ``all`` (every visible GPU; one slot, in this process, without any) or a number."""
     env = os.environ if env is None else env
     visible = [d.strip() for d in env.get("CUDA_VISIBLE_DEVICES", "").split(",") if d.strip()]
     n = gpu_count(env)
     ids = visible if visible else [str(i) for i in range(n)]
-    if spec == "all":
+    if gpus == "all":
         return ids or ["-"]
-    if not spec.isdigit() or int(spec) < 1:
-        raise SystemExit(f"--gpus {spec}: give a number of GPUs (1 or more) or all")
-    k = int(spec)
+    if not gpus.isdigit() or int(gpus) < 1:
+        raise SystemExit(f"--gpus {gpus}: give a number of GPUs (1 or more) or all")
+    k = int(gpus)
     if ids and k > len(ids):
         raise SystemExit(f"--gpus {k}: only {len(ids)} GPU(s) are visible; give at most {len(ids)} or all")
     return ids[:k] if ids else [str(i) for i in range(k)]
 
 
-def shard_jobs(jobs: list, spec: str | None) -> list:
-    """Every n-th job from the i-th (``spec`` "i/n", 0 <= i < n), in order; all of them for None."""
-    if not spec:
+def shard_jobs(jobs: list, shard: str | None) -> list:
+    """Every n-th job from the i-th (``shard`` "i/n", 0 <= i < n), in order; all of them for None."""
+    if not shard:
         return list(jobs)
     try:
-        i, n = (int(x) for x in spec.split("/"))
+        i, n = (int(x) for x in shard.split("/"))
         if not 0 <= i < n:
             raise ValueError
     except ValueError:
-        raise SystemExit(f"--shard {spec}: give i/n with 0 <= i < n, e.g. 0/2 on the first of two hosts")
+        raise SystemExit(f"--shard {shard}: give i/n with 0 <= i < n, e.g. 0/2 on the first of two hosts")
     return list(jobs)[i::n]
 
 

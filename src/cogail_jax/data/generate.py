@@ -241,7 +241,7 @@ def run_episodes(env, keys, mix, variation: int = 0, resalt: int = 0, robot_stra
 def generate(env, num: int, mix=None, seed: int = 0, robot_strategy: int | None = None,
              batch: int | None = None) -> Episodes:
     """``num`` scripted human-human episodes from generator seed ``seed`` (``robot_strategy``: tests only, see
-    ``rollout_one``)."""
+    ``episode_one``)."""
     keys = jax.random.split(jax.random.PRNGKey(seed), num)
     out = run_episodes(env, keys, resolve_mix(env, mix), robot_strategy=int(robot_strategy or 0), batch=batch)
     return Episodes(**{k: out[k] for k in Episodes._fields})

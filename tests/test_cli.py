@@ -158,6 +158,15 @@ def test_set_parses_booleans(text, value):
     assert cfg.disc_instance_noise is value and cfg.reward_norm is value
 
 
+def test_keep_full_counts_training_states():
+    parse = lambda v: cli.build_parser().parse_args(["train", "--task", "fetchq", "--run", "x", "--keep-full", v])  # noqa: E731
+    assert parse("all").keep_full is None and parse("3").keep_full == 3
+    assert cli.build_parser().parse_args(["train", "--task", "fetchq", "--run", "x"]).keep_full == 1  # the newest
+    for bad in ("0", "-1", "some"):
+        with pytest.raises(SystemExit):
+            parse(bad)
+
+
 def test_set_parses_numbers_seeds_and_optional_files():
     from cogail_jax.algo.config import ConfigError
 

@@ -52,6 +52,11 @@ class CollabEnv(Env):
     max_episode_steps: int = 0
     init_size: int = 0
     strategy_names: Sequence[str] = ()
+    # observation indices of object-centric features (the object's pose in each agent's frame and the reverse), and
+    # of the absolute orientations (the agents' and the object's rotations in base or world frames): a run's
+    # ``obs_frame`` chooses which of the two its networks read (algo.config)
+    object_frame_dims: Sequence[int] = ()
+    orientation_dims: Sequence[int] = ()
 
     @property
     def action_size(self) -> int:

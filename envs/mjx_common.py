@@ -441,6 +441,20 @@ def tcp_pose_base(d: mjx.Data, g: Gripper) -> jax.Array:
     return jnp.concatenate([pos, rot6d(mat)])
 
 
+def object_frame_features(d: mjx.Data, g: Gripper, p_obj: jax.Array, R_obj: jax.Array, half_len: float) -> jax.Array:
+    """(11,) object-centric features of one agent and a bar-like object (long axis: the object's local y):
+    the bar's two ends relative to the agent's TCP in the agent's base frame (the frame its actions move in;
+    3 + 3), the yaw of the TCP relative to the bar as ``(sin 2d, cos 2d)`` (two-finger grippers and bars are
+    symmetric under half a turn; 2) and the TCP's position in the object's frame (3). They look the same
+    wherever the object is and however it is turned, which is what a policy needs to grasp it there."""
+    B = jnp.asarray(g.base_mat.T)
+    tcp = tcp_pos(d, g)
+    axis = R_obj[:, 1] * half_len
+    dyaw = yaw_of(tcp_mat(d, g)) - yaw_of(R_obj)
+    return jnp.concatenate([B @ (p_obj + axis - tcp), B @ (p_obj - axis - tcp),
+                            jnp.stack([jnp.sin(2 * dyaw), jnp.cos(2 * dyaw)]), R_obj.T @ (tcp - p_obj)])
+
+
 def finger_gap(d: mjx.Data, g: Gripper) -> jax.Array:
     """Distance between the finger pads (m)."""
     return d.qpos[g.finger_qpos[0]] + d.qpos[g.finger_qpos[1]]

@@ -49,12 +49,16 @@ class Team:
     implement variations sets ``variations=False`` and ignores it.
     ``act(env, team_state, state, rng) -> (team_state, action)``: both agents' action ``concat(a_H, a_R)``.
     ``partner_can_follow``: ``init`` also takes ``variation | variations.FOLLOWING_PARTNER`` (a robot that
-    follows the human's apparent strategy under a change of mind, for the training sets' varied humans)."""
+    follows the human's apparent strategy under a change of mind, for the training sets' varied humans).
+    ``held_out``: ``init`` also takes ``variation | variations.POSE_HELDOUT``, an episode whose object pose or
+    place lies in the team's held-out slice (outside every training, validation and test episode's range; the
+    ``pose_heldout`` evaluation set)."""
 
     init: Callable
     act: Callable
     variations: bool = False
     partner_can_follow: bool = False
+    held_out: bool = False
 
 
 @dataclass(frozen=True)

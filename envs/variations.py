@@ -23,6 +23,11 @@ scripted ROBOT instead of reading the team's plan: under ``change_of_mind`` it f
 human's moves suggest and switches when the human turns to its own, as a partner who cannot read minds does.
 Training sets use it (``robustness.ensure_varied_training_set``) so that the demonstrations show a robot
 recovering from a wrong guess; the test and validation humans are recorded with the robot that reads the plan.
+
+``variation | POSE_HELDOUT`` (teams with ``held_out``) draws the episode's object pose and hand-over place from the
+team's held-out slice (the outer band of each range, e.g. the outer third of the carry angle) instead of its
+training range: every default, training, validation and test episode lies in the training range, and the
+``pose_heldout`` evaluation set measures generalisation beyond it. What the ranges are: the team's module.
 """
 from __future__ import annotations
 
@@ -32,22 +37,54 @@ import jax.numpy as jnp
 VARIATIONS = ("slow", "fast", "pauses", "detour", "noise", "change_of_mind")
 NONE, SLOW, FAST, PAUSES, DETOUR, NOISE, CHANGE_OF_MIND = range(7)
 FOLLOWING_PARTNER = 8  # flag bit on a variation id: the scripted robot follows the human's apparent strategy
+POSE_HELDOUT = 16      # flag bit: the human presents the object in the team's held-out pose / place slice
+HELD_OUT = "pose_heldout"  # the name of that slice's evaluation set (teams with ``held_out``)
 
 # salt for the variation's own random draws (fold_in of the team key): the default draws stay as they were
 VARIATION_SALT = 7_777
 
 
 def variation_id(variation: int | str | None) -> int:
-    """``None`` / ``"none"`` -> 0, a name of :data:`VARIATIONS` -> its id (1..6), an int -> itself."""
+    """``None`` / ``"none"`` -> 0, a name of :data:`VARIATIONS` -> its id (1..6), ``"pose_heldout"`` ->
+    :data:`POSE_HELDOUT`, an int -> itself."""
     if variation is None:
         return NONE
     if isinstance(variation, str):
         if variation == "none":
             return NONE
+        if variation == HELD_OUT:
+            return POSE_HELDOUT
         if variation not in VARIATIONS:
             raise ValueError(f"unknown variation {variation!r}: choose one of {', '.join(VARIATIONS)}")
         return VARIATIONS.index(variation) + 1
     return int(variation)
+
+
+def human_variation(variation) -> jax.Array:
+    """The variation id without its flag bits (:data:`FOLLOWING_PARTNER`, :data:`POSE_HELDOUT`)."""
+    return jnp.asarray(variation, jnp.int32) % FOLLOWING_PARTNER
+
+
+def held_out(variation) -> jax.Array:
+    """Whether ``variation`` carries :data:`POSE_HELDOUT` (the episode's pose is drawn from the held-out slice)."""
+    return (jnp.asarray(variation, jnp.int32) & POSE_HELDOUT) > 0
+
+
+def following(variation) -> jax.Array:
+    """Whether ``variation`` carries :data:`FOLLOWING_PARTNER`."""
+    return (jnp.asarray(variation, jnp.int32) & FOLLOWING_PARTNER) > 0
+
+
+def slice_draw(key: jax.Array, held, inner: tuple[float, float], outer: tuple[float, float],
+               symmetric: bool = False) -> jax.Array:
+    """A value of a ranged draw: uniform over ``inner`` (the training range), or over ``outer`` (the held-out band
+    beyond it) where ``held``. ``symmetric``: the ranges are of the magnitude and the sign is drawn too."""
+    k1, k2, k3 = jax.random.split(key, 3)
+    a = jax.random.uniform(k1, (), minval=inner[0], maxval=inner[1])
+    b = jax.random.uniform(k2, (), minval=outer[0], maxval=outer[1])
+    if symmetric:
+        b = b * jnp.where(jax.random.bernoulli(k3, 0.5), 1.0, -1.0)
+    return jnp.where(held, b, a)
 
 
 def pace_factor(variation, slow: float, fast: float) -> jax.Array:
@@ -70,5 +107,6 @@ def paused(starts: jax.Array, lens: jax.Array, t: jax.Array) -> jax.Array:
     return jnp.any((t >= starts) & (t < starts + lens))
 
 
-__all__ = ["VARIATIONS", "FOLLOWING_PARTNER", "NONE", "SLOW", "FAST", "PAUSES", "DETOUR", "NOISE", "CHANGE_OF_MIND",
+__all__ = ["VARIATIONS", "FOLLOWING_PARTNER", "POSE_HELDOUT", "HELD_OUT", "human_variation", "held_out", "following",
+           "slice_draw", "NONE", "SLOW", "FAST", "PAUSES", "DETOUR", "NOISE", "CHANGE_OF_MIND",
            "variation_id", "pace_factor", "pause_schedule", "paused"]

@@ -5,7 +5,7 @@ Scene (world frame, z up, table top z = 0; see :mod:`mjx_common` for the gripper
           robot base (0, +0.40, 0.25), faces -y
                  |
       left (-x)  |  right (+x)        <- seen from the human
-     ------------+------------  handover band: object centre y in [-0.06, 0.05], z in [0.12, 0.32]
+     ------------+------------  handover band: object centre y in [-0.06, 0.05], z in [0.10, 0.35]
                  |
            [=====bar=====]         bar 3 x 20 x 3 cm, 80 g, lying along y at (x0, -0.21, 0.015)
                  |
@@ -19,9 +19,13 @@ Action (14): ``concat(a_H, a_R)``, each ``(dx, dy, dz, drx, dry, drz, g)`` in [-
 per unit per step in the agent's base frame (the paper's scale; a scripted demo lasts ~211 steps) and
 the absolute gripper command (-1 closed, +1 open). See :mod:`mjx_common` for details.
 
-Observation (35): human TCP pose in the human base frame (3 + 6D rotation), robot TCP pose in the robot
+Observation (57): human TCP pose in the human base frame (3 + 6D rotation), robot TCP pose in the robot
 base frame (3 + 6), bar position relative to each TCP (each in that agent's base frame, 3 + 3), bar
-orientation (6D, world), finger gaps / 8 cm (2), flags: human grasps, robot grasps, human released (3).
+orientation (6D, world), finger gaps / 8 cm (2), flags: human grasps, robot grasps, human released (3);
+then the object-centric features of the human and of the robot (11 each, :func:`mjx_common.object_frame_features`:
+the bar's ends in the agent's base frame relative to its TCP, the TCP's yaw relative to the bar, the TCP in the
+bar's frame), the observation indices :attr:`Handover.object_frame_dims` (a config's ``obs_frame``
+chooses whether they or the absolute orientations are read).
 
 Rules:
 * ``grasp`` (per agent): both finger pads touch the bar (contact sensors) and the gripper is commanded
@@ -67,7 +71,6 @@ ROBOT_BASE = (0.0, 0.40, 0.25)
 X_SPLIT = 0.095            # |x| threshold between middle and left/right handovers
 REGIONS_X = np.array([[-0.28, -0.12], [-0.07, 0.07], [0.12, 0.28]], np.float32)  # left, middle, right
 SPOT_Y = (-0.06, 0.05)
-SPOT_Z = (0.12, 0.32)
 RELEASE_AFTER = 3          # robot-grasp steps before the human's gripper auto-opens
 SUCCESS_DIST = 0.10
 LIFTED_Z = 0.05
@@ -128,9 +131,14 @@ class Handover(CollabEnv):
         self._template = mc.mjx.make_data(self.mx)
         self._frames = mc.FrameRenderer(self.mj_model)
 
+    # the observation layout and the team's pose ranges (part of the version fingerprint of generated data)
+    spec_tag = "obs57-object-frame-poses2"
+    object_frame_dims = tuple(range(35, 57))
+    orientation_dims = (*range(3, 9), *range(12, 18), *range(24, 30))  # the TCPs' and the bar's 6D rotations
+
     @property
     def observation_size(self) -> int:
-        return 35
+        return 57
 
     @property
     def dt(self) -> float:
@@ -173,12 +181,13 @@ class Handover(CollabEnv):
 
     def _obs(self, d, info: dict) -> jax.Array:
         h, r = self.human, self.robot
-        p = self._obj_pos(d)
+        p, R = self._obj_pos(d), self._obj_mat(d)
         rel = [jnp.asarray(g.base_mat.T) @ (p - mc.tcp_pos(d, g)) for g in (h, r)]
         return jnp.concatenate([
-            mc.tcp_pose_base(d, h), mc.tcp_pose_base(d, r), rel[0], rel[1], mc.rot6d(self._obj_mat(d)),
+            mc.tcp_pose_base(d, h), mc.tcp_pose_base(d, r), rel[0], rel[1], mc.rot6d(R),
             jnp.stack([mc.finger_gap(d, h), mc.finger_gap(d, r)]) / mc.MAX_GAP,
             jnp.stack([info["human_grasp"], info["robot_grasp"], info["released"]]),
+            mc.object_frame_features(d, h, p, R, OBJ_HALF[1]), mc.object_frame_features(d, r, p, R, OBJ_HALF[1]),
         ]).astype(jnp.float32)
 
     def replay_hold(self, state: State, a_h: jax.Array) -> tuple[jax.Array, jax.Array]:

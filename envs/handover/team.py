@@ -1,8 +1,8 @@
 """HR-Handover's scripted human-human team (the env is :mod:`cogail_envs.handover`).
 
 The team draws the region from ``mix`` and then a continuous spot inside it (regions are separated by 5 cm
-gaps around the classification thresholds so every demo is labelled by its drawn region), a carry yaw,
-speeds, reaction delays, pauses and action noise; motions are proportional control with velocity and
+gaps around the classification thresholds so every demo is labelled by its drawn region), the yaw at which
+the human presents the bar, speeds, reaction delays, pauses and action noise; motions are proportional control with velocity and
 acceleration limits (smooth, minimum-jerk-like bell-shaped speed profiles).
 
 Human: wait, reach above the bar, descend, close, lift, carry to the spot, hold still there until the robot
@@ -13,6 +13,18 @@ How the robot decides: it never reads the strategy (region); WHERE it goes is th
 wherever the human carries it. WHEN: it starts once the human has lifted the bar and moves over the bar
 once the human holds it still at the spot (``H_HOLD``: the human's own phase, as a partner who sees the
 human has arrived), closes, and retreats once the human has let go (state).
+
+Poses and places (the ranges a person plausibly uses; the robot grasps the bar wherever it is):
+
+* the bar's yaw at the handover (rad, about the vertical; the robot's gripper turns +-1.6 rad, and bar and
+  gripper are symmetric under half a turn): training range ``|yaw| <= 0.7`` (+-40 degrees), held-out slice
+  ``0.7 < |yaw| <= 1.05`` (the outer third of +-60 degrees);
+* the spot: x over the drawn region (left -0.28..-0.12, middle -0.07..0.07, right 0.12..0.28), y in
+  [-0.06, 0.05], height (bar centre) z in [0.10, 0.30]; held-out slice: z in (0.30, 0.35].
+
+Every default, training, validation and test episode lies in the training ranges; an episode drawn with
+``variation | POSE_HELDOUT`` (the ``pose_heldout`` evaluation set) has either its yaw or its height (one of
+the two, at even odds) in the held-out slice and the other in range.
 
 Variations of the human (:mod:`cogail_envs.variations`; the robot is unchanged):
 
@@ -34,9 +46,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import mjx_common as mc
-from .env import GRASP_OFF, OBJ, REGIONS_X, SPOT_Y, SPOT_Z
+from .env import GRASP_OFF, OBJ, REGIONS_X, SPOT_Y
 from ..registry import Team
-from ..variations import CHANGE_OF_MIND, DETOUR, NOISE, VARIATION_SALT, pace_factor, pause_schedule, paused
+from ..variations import (CHANGE_OF_MIND, DETOUR, NOISE, VARIATION_SALT, held_out, human_variation, pace_factor,
+                          pause_schedule, paused, slice_draw)
 
 # human phases
 H_WAIT, H_REACH, H_DESCEND, H_CLOSE, H_LIFT, H_CARRY, H_HOLD, H_RETREAT = range(8)
@@ -47,6 +60,9 @@ PACE = (0.6, 1.4)
 NUM_PAUSES, PAUSE_START, PAUSE_LEN = 2, (15, 200), (20, 41)
 NOISE_FACTOR = 3.0
 DECOY_STEPS = (35, 61)
+YAW_RANGE, YAW_HELD = (0.0, 0.7), (0.7, 1.05)   # |yaw| of the presented bar: training range, held-out slice
+Z_RANGE, Z_HELD = (0.10, 0.30), (0.30, 0.35)    # handover height (bar centre, m)
+POSE_SALT = 4_242
 
 
 def _rotz(yaw: jax.Array) -> jax.Array:
@@ -89,8 +105,11 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
     u = lambda k, lo, hi, shape=(): jax.random.uniform(k, shape, minval=lo, maxval=hi)  # noqa: E731
     strategy = jax.random.categorical(ks[0], jnp.log(jnp.asarray(mix, jnp.float32) + 1e-12)).astype(jnp.int32) + 1
     lo, hi = jnp.asarray(REGIONS_X)[strategy - 1]
-    spot = jnp.stack([u(ks[1], lo, hi), u(ks[2], *SPOT_Y), u(ks[3], *SPOT_Z)])
-    v = jnp.asarray(variation, jnp.int32)
+    kp = jax.random.split(jax.random.fold_in(rng, POSE_SALT), 3)
+    held = held_out(variation)
+    held_yaw = jax.random.bernoulli(kp[0], 0.5)  # which of the two the held-out slice moves
+    spot = jnp.stack([u(ks[1], lo, hi), u(ks[2], *SPOT_Y), slice_draw(ks[3], held & ~held_yaw, Z_RANGE, Z_HELD)])
+    v = human_variation(variation)
     kv = jax.random.split(jax.random.fold_in(rng, VARIATION_SALT), 8)
     pace = pace_factor(v, *PACE)
     pause_t, pause_n = pause_schedule(kv[0], v, NUM_PAUSES, PAUSE_START, PAUSE_LEN)
@@ -111,7 +130,7 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
     ts = TeamState(
         strategy=jnp.stack([strategy, strategy]),
         spot=spot,
-        yaw=u(ks[4], -0.35, 0.35),
+        yaw=slice_draw(ks[4], held & held_yaw, (-YAW_RANGE[1], YAW_RANGE[1]), YAW_HELD, symmetric=True),
         vmax=vmax.at[0].set(jnp.minimum(vmax[0] * pace, 1.0)),
         amax=amax.at[0].multiply(pace),
         gain=gain.at[0].multiply(pace),
@@ -298,4 +317,4 @@ def team_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.
     return ts, action
 
 
-TEAM = Team(init=team_init, act=team_act, variations=True, partner_can_follow=False)
+TEAM = Team(init=team_init, act=team_act, variations=True, partner_can_follow=False, held_out=True)

@@ -31,11 +31,15 @@ Action (14): ``concat(a_H, a_R)``, each ``(dx, dy, dz, drx, dry, drz, g)`` in [-
 per unit per step in the agent's base frame (the paper's HR-Handover scale, shared with
 :mod:`handover`) and the absolute gripper command (-1 closed, +1 open).
 
-Observation (43): human TCP pose in the human base frame (3 + 6D rotation), robot TCP pose in the robot
+Observation (65): human TCP pose in the human base frame (3 + 6D rotation), robot TCP pose in the robot
 base frame (3 + 6), object position relative to each TCP (each in that agent's base frame, 3 + 3),
 object orientation (6D, world), finger gaps / 8 cm (2), handle position relative to each TCP (each in
 that agent's base frame, 3 + 3), drawer opening / 16 cm (1), flags: human grasps the object, robot
-grasps the object, human grasps the handle, robot grasps the handle (4).
+grasps the object, human grasps the handle, robot grasps the handle (4); then the object-centric features of
+the human and of the robot (11 each, :func:`mjx_common.object_frame_features`: the bar's ends in the agent's
+base frame relative to its TCP, the TCP's yaw relative to the bar, the TCP in the bar's frame), the observation
+indices :attr:`SeqManip.object_frame_dims` (a config's ``obs_frame`` chooses whether
+they or the absolute orientations are read).
 
 Rules:
 * Grasping is an honest friction grasp of the bar (:func:`mjx_common.is_grasping`: both finger pads
@@ -120,7 +124,7 @@ CLOSED_TOL = 0.01       # opening (m) below which the drawer counts as closed
 REST_SPEED = 0.05       # object speed (m/s) below which it "rests"
 DRAWER_OPEN_MIN = 0.10  # opening the scripted droppers wait for
 CUE_Y = -0.13           # s1: the scripted robot starts once the human's TCP is past this y (spot side)
-HANDOVER_X_MAX = 0.06   # the patient human's handovers: object x below this (handover spots x <= 0; the drop into
+HANDOVER_X_MAX = 0.075  # the patient human's handovers: object x below this (handover spots x <= 0.02; the drop into
                         # the open drawer is at x >= 0.085)
 WALL_TOP = FLOOR_Z + WALL_H
 
@@ -223,9 +227,14 @@ class SeqManip(CollabEnv):
         self._template = mjx.make_data(self.mx)
         self._renderer = None
 
+    # the observation layout and the team's pose ranges (part of the version fingerprint of generated data)
+    spec_tag = "obs65-object-frame-poses2"
+    object_frame_dims = tuple(range(43, 65))
+    orientation_dims = (*range(3, 9), *range(12, 18), *range(24, 30))  # the TCPs' and the bar's 6D rotations
+
     @property
     def observation_size(self) -> int:
-        return 43
+        return 65
 
     @property
     def dt(self) -> float:
@@ -286,13 +295,14 @@ class SeqManip(CollabEnv):
     # ------------------------------------------------------------------ observation
     def _obs(self, d, info: dict) -> jax.Array:
         h, r = self.human, self.robot
-        p, hp = self._obj_pos(d), self._handle_pos(d)
+        p, hp, R = self._obj_pos(d), self._handle_pos(d), self._obj_mat(d)
         rel = lambda q, g: jnp.asarray(g.base_mat.T) @ (q - mc.tcp_pos(d, g))
         return jnp.concatenate([
-            mc.tcp_pose_base(d, h), mc.tcp_pose_base(d, r), rel(p, h), rel(p, r), mc.rot6d(self._obj_mat(d)),
+            mc.tcp_pose_base(d, h), mc.tcp_pose_base(d, r), rel(p, h), rel(p, r), mc.rot6d(R),
             jnp.stack([mc.finger_gap(d, h), mc.finger_gap(d, r)]) / mc.MAX_GAP,
             rel(hp, h), rel(hp, r), (self._opening(d) / TRAVEL)[None],
             jnp.stack([info["human_grasp"], info["robot_grasp"], info["human_handle"], info["robot_handle"]]),
+            mc.object_frame_features(d, h, p, R, OBJ_HALF[1]), mc.object_frame_features(d, r, p, R, OBJ_HALF[1]),
         ]).astype(jnp.float32)
 
     def replay_hold(self, state: State, a_h: jax.Array) -> tuple[jax.Array, jax.Array]:

@@ -1,8 +1,8 @@
 """HR-SeqManip's scripted human-human team (the env is :mod:`cogail_envs.seqmanip`).
 
 Two phase machines (human ``H_*``, robot ``R_*``; successor tables ``NEXT_H`` / ``NEXT_R`` per strategy).
-The strategy is drawn from ``mix``; within a strategy the team varies the handover spot (x in [-0.16, 0],
-y in [-0.07, 0], z in [0.14, 0.26]), the carry yaw, the waiting points, how far the drawer is pulled
+The strategy is drawn from ``mix``; within a strategy the team varies the handover spot, the yaw at which the
+human holds the bar, the waiting points (ranges below), how far the drawer is pulled
 (12.5-15.5 cm), where each hand grasps the handle, where and from how high the object is dropped, speeds,
 acceleration limits, gains, start and reaction delays, a pause after lifting and action noise. Motions are
 proportional control with velocity and acceleration limits (bell-shaped, minimum-jerk-like speed
@@ -24,6 +24,19 @@ the middle of the table (s1) or holds the bar still at its waiting point by the 
 bar once the human offers it, closes once the human has let go, drops once the drawer is open and held,
 and closes the drawer once the bar lies in it and the human has retreated. A human who is late, pauses or
 first heads elsewhere is waited for.
+
+Poses and places (the ranges a person plausibly uses; the robot grasps the bar wherever it is):
+
+* the bar's yaw while the human carries, offers or holds it (rad, about the vertical): training range
+  ``|yaw| <= 0.7`` (+-40 degrees), held-out slice ``0.7 < |yaw| <= 1.05`` (the outer third of +-60 degrees);
+* the handover spot (bar centre, strategy 1): x in [-0.20, 0.02], y in [-0.08, 0.01], z in [0.12, 0.26];
+  held-out slice: z in (0.26, 0.31];
+* the human's waiting point with the bar (its TCP, strategy 2): x in [-0.09, 0.04], y in [-0.23, -0.14], z in
+  [0.16, 0.25]; held-out slice: z in (0.25, 0.30].
+
+Every default, training, validation and test episode lies in the training ranges; an episode drawn with
+``variation | POSE_HELDOUT`` (the ``pose_heldout`` evaluation set) has either its yaw or its height (one of
+the two, at even odds) in the held-out slice and the other in range.
 
 Variations of the human (:mod:`cogail_envs.variations`; the robot is unchanged):
 
@@ -55,8 +68,8 @@ import numpy as np
 from .. import mjx_common as mc
 from .env import CUE_Y, DR_DX, DRAWER_OPEN_MIN, GRASP_OFF, OBJ, OBJ_HALF, WALL_TOP
 from ..registry import Team
-from ..variations import (CHANGE_OF_MIND, DETOUR, FOLLOWING_PARTNER, NOISE, VARIATION_SALT, pace_factor, pause_schedule,
-               paused)
+from ..variations import (CHANGE_OF_MIND, DETOUR, NOISE, VARIATION_SALT, following, held_out, human_variation,
+                          pace_factor, pause_schedule, paused, slice_draw)
 
 (H_WAIT, H_REACH, H_DESCEND, H_CLOSE, H_LIFT,
  H_CARRY, H_OFFER, H_BACKOFF, H_TO_HANDLE, H_DESC_HANDLE, H_GRIP_HANDLE, H_PULL, H_HOLD_OPEN, H_PUSH,
@@ -84,6 +97,10 @@ PACE = (0.7, 1.4)
 NUM_PAUSES, PAUSE_START, PAUSE_LEN = 2, (15, 380), (20, 41)
 NOISE_FACTOR = 3.0
 DECOY_STEPS = (35, 61)
+YAW_RANGE, YAW_HELD = (0.0, 0.7), (0.7, 1.05)   # |yaw| of the held bar: training range, held-out slice
+SPOT_LO, SPOT_HI, SPOT_Z_HELD = (-0.20, -0.08, 0.12), (0.02, 0.01, 0.26), (0.26, 0.31)
+WAIT_LO, WAIT_HI, WAIT_Z_HELD = (-0.09, -0.23, 0.16), (0.04, -0.14, 0.25), (0.25, 0.30)
+POSE_SALT = 4_242
 
 
 def _rotz(yaw: jax.Array) -> jax.Array:
@@ -157,8 +174,15 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
     u = lambda k, lo, hi, shape=(): jax.random.uniform(k, shape, minval=jnp.asarray(lo, jnp.float32),  # noqa: E731
                                                        maxval=jnp.asarray(hi, jnp.float32))
     strategy = (jax.random.categorical(ks[0], jnp.log(jnp.asarray(mix, jnp.float32) + 1e-12)) + 1).astype(jnp.int32)
-    v_in = jnp.asarray(variation, jnp.int32)
-    v = v_in % FOLLOWING_PARTNER
+    v = human_variation(variation)
+    kp = jax.random.split(jax.random.fold_in(rng, POSE_SALT), 4)
+    held = held_out(variation)
+    held_yaw = jax.random.bernoulli(kp[0], 0.5)  # which of the two the held-out slice moves
+    high = held & ~held_yaw
+    spot = u(ks[1], SPOT_LO, SPOT_HI, (3,))
+    spot = spot.at[2].set(slice_draw(kp[1], high, (SPOT_LO[2], SPOT_HI[2]), SPOT_Z_HELD))
+    wait_h = u(ks[2], WAIT_LO, WAIT_HI, (3,))
+    wait_h = wait_h.at[2].set(slice_draw(kp[2], high, (WAIT_LO[2], WAIT_HI[2]), WAIT_Z_HELD))
     kv = jax.random.split(jax.random.fold_in(rng, VARIATION_SALT), 8)
     pace = pace_factor(v, *PACE)
     pause_t, pause_n = pause_schedule(kv[0], v, NUM_PAUSES, PAUSE_START, PAUSE_LEN)
@@ -170,13 +194,13 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
     decoy_n = jnp.where(v == CHANGE_OF_MIND, jax.random.randint(kv[7], (), *DECOY_STEPS), 0)
     vmax, amax, gain = u(ks[9], 0.45, 0.85, (2,)), u(ks[10], 0.06, 0.12, (2,)), u(ks[11], 0.12, 0.22, (2,))
     noise = u(ks[18], 0.02, 0.08, (2,))
-    follows = (v_in >= FOLLOWING_PARTNER) & (v == CHANGE_OF_MIND)
+    follows = following(variation) & (v == CHANGE_OF_MIND)
     ts = TeamState(
         strategy=jnp.stack([strategy, jnp.where(follows, 3 - strategy, strategy)]),
-        spot=u(ks[1], [-0.16, -0.07, 0.14], [0.0, 0.0, 0.26], (3,)),
-        wait_pt=jnp.stack([u(ks[2], [-0.06, -0.21, 0.18], [0.04, -0.15, 0.25], (3,)),
+        spot=spot,
+        wait_pt=jnp.stack([wait_h,
                            u(ks[3], [0.04, 0.13, 0.24], [0.10, 0.17, 0.29], (3,))]),
-        yaw=u(ks[4], -0.3, 0.3),
+        yaw=slice_draw(ks[4], held & held_yaw, (-YAW_RANGE[1], YAW_RANGE[1]), YAW_HELD, symmetric=True),
         drop=u(ks[5], [0.035, -0.03, 0.01, -0.1], [0.05, 0.03, 0.03, 0.1], (4,)),
         open_amt=u(ks[6], 0.125, 0.155),
         handle_y=jnp.stack([u(ks[7], -0.04, -0.005), u(ks[8], 0.005, 0.04)]),
@@ -431,4 +455,4 @@ def team_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.
     return ts, action
 
 
-TEAM = Team(init=team_init, act=team_act, variations=True, partner_can_follow=True)
+TEAM = Team(init=team_init, act=team_act, variations=True, partner_can_follow=True, held_out=True)

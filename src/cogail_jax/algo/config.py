@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 METHODS = ("cogail", "ma_infogail", "ma_gail", "bc_gail", "bc_single", "diayn")
+OBS_FRAMES = ("world", "both", "object")
 
 
 class ConfigError(ValueError):
@@ -76,6 +77,11 @@ class TrainConfig:
     # and evaluation, play and video act with it (the average of a GAN's generator over its last iterates)
     policy_ema: float = 0.0
     obs_std_floor: float = 1e-2  # floor of the observation normaliser's std (0.1 for the MJX tasks' configs)
+    # which observation features the networks read (our addition; the others normalise to 0): "world" the task's
+    # own observation without the object-centric features (the env's ``object_frame_dims``: the object's pose in
+    # each agent's frame and the reverse), "both" all of them, "object" the object-centric features instead of the
+    # absolute orientations (the env's ``orientation_dims``: nothing that tells how the scene is turned)
+    obs_frame: str = "both"
     # discriminator
     disc_loss: str = "auto"  # "bce" | "lsgan" | "auto" (the task's default_config(), else lsgan)
     disc_lr: float = 3e-4
@@ -173,6 +179,8 @@ class TrainConfig:
                      "ppo_epochs", "num_minibatches", "inner_updates", "inner_batch", "eval_codes"):
             if getattr(self, name) <= 0:
                 raise ConfigError(f"{name.replace('_', '-')} must be positive, got {getattr(self, name)}")
+        if self.obs_frame not in OBS_FRAMES:
+            raise ConfigError(f"obs_frame must be one of {', '.join(OBS_FRAMES)}, got {self.obs_frame!r}")
         if not self.obs_std_floor > 0:
             raise ConfigError(f"obs_std_floor must be positive, got {self.obs_std_floor}")
         if self.multi_device not in ("auto", "shard_map", "per_device"):

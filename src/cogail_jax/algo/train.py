@@ -444,14 +444,26 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
 
 
 # ------------------------------------------------------------------------------------------------ normaliser, codes
-def fit_normalizer(expert: dict[str, np.ndarray], std_floor: float = 1e-2) -> dict[str, np.ndarray]:
+def fit_normalizer(expert: dict[str, np.ndarray], std_floor: float = 1e-2, unread=()) -> dict[str, np.ndarray]:
     """Observation mean/std of the training demonstrations (std floored at ``std_floor`` so near-constant
     features, e.g. an MJX gripper's tilt, do not blow up when a policy drifts from them), the number of
     demonstrations (BC pre-training learns one code per demonstration) and each demonstration's trajectory
-    features (the per-demonstration codes start from their principal components)."""
+    features (the per-demonstration codes start from their principal components). The observation indices
+    ``unread`` normalise to 0 (mean 0, std infinite): no network reads them."""
     mean, std = expert["obs"].mean(0), np.maximum(expert["obs"].std(0), std_floor)
+    unread = list(unread)
+    if unread:
+        mean, std = mean.copy(), std.copy()
+        mean[unread], std[unread] = 0.0, np.inf
     return {"mean": mean, "std": std, "num_demos": int(expert["demo"].max()) + 1,
             "features": demo_features((expert["obs"] - mean) / std, expert["demo"])}
+
+
+def unread_dims(cfg: TrainConfig, env) -> tuple[int, ...]:
+    """The observation indices ``cfg``'s networks do not read (``obs_frame``): the env's object-centric features
+    ("world"), its absolute orientations ("object") or none ("both")."""
+    key = {"world": "object_frame_dims", "object": "orientation_dims"}.get(cfg.obs_frame)
+    return tuple(getattr(env, key, ())) if key else ()
 
 
 def demo_features(obs_n: np.ndarray, demo: np.ndarray, points: int = 16) -> np.ndarray:
@@ -485,4 +497,4 @@ def demo_code_init(features: np.ndarray, code_dim: int, edge: float = 0.9) -> np
 
 __all__ = ["TrainState", "Context", "make_context", "make_train_fns", "train_step", "aux_step", "disc_step", "ppo_grad",
            "ppo_update", "bc_pretrain",
-           "expert_arrays", "fit_normalizer", "demo_code_init", "demo_features", "code_grid"]
+           "expert_arrays", "fit_normalizer", "unread_dims", "demo_code_init", "demo_features", "code_grid"]

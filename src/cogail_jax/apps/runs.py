@@ -81,7 +81,8 @@ def build(cfg: TrainConfig, need_heldout: bool = True, need_validation: bool | N
         validation = rollouts.heldout_arrays(data.load_demos(files["validation"], env, require_init=True))
     if run_dir is not None and files:
         manifest.check(run_dir, files, env.version)
-    init, chunk, nets = train.make_train_fns(cfg, env, train.fit_normalizer(expert, cfg.obs_std_floor))
+    init, chunk, nets = train.make_train_fns(cfg, env, train.fit_normalizer(expert, cfg.obs_std_floor,
+                                                                               train.unread_dims(cfg, env)))
     return Setup(cfg, env, expert, heldout, init, chunk, nets, train_metrics, validation,
                  {k: str(v) for k, v in files.items()})
 

@@ -59,7 +59,9 @@ def robustness_paths(cfg, make: bool = False, env=None, verbose: bool = True) ->
     team = get_task(cfg.task).team
     if team is None or not team.variations:
         return {}
-    return varied.ensure_robustness_sets(env or _task_env(cfg), mix=cfg.mix, verbose=verbose, make=make)
+    env = env or _task_env(cfg)
+    return varied.ensure_robustness_sets(env, mix=cfg.mix, variations=varied.protocol_variations(env), verbose=verbose,
+                                         make=make)
 
 
 def run_sets(cfg, robustness: bool = True, make: bool = False, verbose: bool = True) -> dict[str, Path]:

@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cogail_envs.variations import VARIATIONS, variation_id
+from cogail_envs.variations import HELD_OUT, VARIATIONS, variation_id
 
 from cogail_envs import team_of
 
@@ -48,7 +48,7 @@ ROBUST_VERSION = 2  # bump when the variations change (cached files are regenera
 SPLIT_SEED = {"test": 100, "validation": 200, "train": 300}  # + the variation's index
 PREFIX = "robust-"
 
-__all__ = ["VARIATIONS", "ensure_robustness_sets", "generate_varied", "blind_robot_success", "robust_path", "variation_seed", "validate_episodes", "ensure_varied_training_set"]
+__all__ = ["VARIATIONS", "protocol_variations", "ensure_robustness_sets", "generate_varied", "blind_robot_success", "robust_path", "variation_seed", "validate_episodes", "ensure_varied_training_set"]
 
 
 class VariedEpisodes(NamedTuple):
@@ -66,10 +66,22 @@ class VariedEpisodes(NamedTuple):
     gen_index: np.ndarray
 
 
+HELD_OUT_SEED = 50  # + the split's seed: the held-out pose slice's generator seed
+
+
 def variation_seed(variation: str, split: str = "test") -> int:
     if split not in SPLIT_SEED:
         raise ValueError(f"unknown split {split!r}: use {', '.join(SPLIT_SEED)}")
-    return SPLIT_SEED[split] + VARIATIONS.index(variation)
+    return SPLIT_SEED[split] + (HELD_OUT_SEED if variation == HELD_OUT else VARIATIONS.index(variation))
+
+
+def protocol_variations(env) -> tuple[str, ...]:
+    """The evaluation's varied humans of ``env``'s task: :data:`VARIATIONS`, and ``pose_heldout`` (the held-out
+    pose and place slice) where its team draws one."""
+    from cogail_envs import get_task
+
+    team = get_task(env.name).team
+    return tuple(VARIATIONS) + ((HELD_OUT,) if team is not None and team.held_out else ())
 
 
 def robust_path(task: str, variation: str, mix: str = "uniform", split: str = "test", num: int = 0) -> Path:

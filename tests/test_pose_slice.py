@@ -1,0 +1,94 @@
+"""The held-out pose and place slice (``variations.POSE_HELDOUT``) and the object-centric observation features:
+every episode a run trains, validates or is tested on lies in the teams' training ranges, every episode of the
+``pose_heldout`` set lies outside them, and ``obs_frame`` chooses which features the networks read."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import cogail_envs
+from cogail_envs import get_task
+from cogail_envs.variations import FOLLOWING_PARTNER, POSE_HELDOUT, VARIATIONS
+
+from cogail_jax.algo import train
+from cogail_jax.algo.config import TrainConfig
+from cogail_jax.data.varied import protocol_variations, variation_seed
+
+HELD_TASKS = [t for t in ("handover", "seqmanip") if get_task(t).team.held_out]
+
+
+_INIT = {}
+
+
+def _draws(task: str, variation: int, n: int = 2000):
+    """The teams' draws of ``n`` episodes (no physics; one compiled program per task, the variation traced): yaw
+    and the hand-over heights."""
+    if task not in _INIT:
+        env, team = cogail_envs.make_env(task), get_task(task).team
+        _INIT[task] = jax.jit(jax.vmap(lambda k, v: team.init(env, k, env.uniform_mix(), v)))
+    keys = jax.random.split(jax.random.PRNGKey(variation), n)
+    ts, _ = _INIT[task](keys, jnp.full((n,), variation, jnp.int32))
+    mod = __import__(f"cogail_envs.{task}.team", fromlist=["x"])
+    z = {"handover": lambda: [(ts.spot[:, 2], mod.Z_RANGE, mod.Z_HELD)],
+         "seqmanip": lambda: [(ts.spot[:, 2], (mod.SPOT_LO[2], mod.SPOT_HI[2]), mod.SPOT_Z_HELD),
+                              (ts.wait_pt[:, 0, 2], (mod.WAIT_LO[2], mod.WAIT_HI[2]), mod.WAIT_Z_HELD)]}[task]()
+    return np.abs(np.asarray(ts.yaw)), mod, [(np.asarray(v), lo, hi) for v, lo, hi in z]
+
+
+@pytest.mark.parametrize("task", HELD_TASKS)
+def test_training_draws_stay_in_range_and_the_slice_outside(task):
+    """Default, varied (and following-partner) episodes: yaw and heights in the training range; the held-out
+    slice: each episode has its yaw or its height beyond it, and the two kinds each cover their band."""
+    for v in [0, *range(1, len(VARIATIONS) + 1), 6 | FOLLOWING_PARTNER]:
+        yaw, mod, heights = _draws(task, v)
+        assert yaw.max() <= mod.YAW_RANGE[1] + 1e-6, (task, v)
+        for h, (lo, hi), _ in heights:
+            assert h.min() >= lo - 1e-6 and h.max() <= hi + 1e-6, (task, v)
+    yaw, mod, heights = _draws(task, POSE_HELDOUT)
+    out_yaw = yaw > mod.YAW_RANGE[1]
+    out_z = np.zeros_like(out_yaw)
+    for h, (lo, hi), (hlo, hhi) in heights:
+        assert h.max() <= hhi + 1e-6
+        out_z |= h > hi
+    assert np.all(out_yaw ^ out_z)  # exactly one of the two outside the training range
+    assert 0.35 < out_yaw.mean() < 0.65 and yaw[out_yaw].max() > mod.YAW_HELD[1] - 0.05
+    assert yaw.max() <= mod.YAW_HELD[1] + 1e-6
+
+
+def test_slice_is_an_evaluation_set_with_its_own_seeds():
+    """The slice is evaluated (the protocol's varied humans) but never trained on: its generator seeds differ from
+    every split's and every variation's, and the training set's varied humans are the VARIATIONS only."""
+    for task in HELD_TASKS:
+        env = cogail_envs.make_env(task)
+        assert protocol_variations(env)[-1] == "pose_heldout" and "pose_heldout" not in VARIATIONS
+    assert protocol_variations(cogail_envs.make_env("fetchq")) == tuple(VARIATIONS)
+    seeds = {variation_seed(v, s) for v in VARIATIONS for s in ("test", "validation", "train")} | {0, 1, 2}
+    held = {variation_seed("pose_heldout", s) for s in ("test", "validation", "train")}
+    assert not held & seeds
+
+
+@pytest.mark.parametrize("task", HELD_TASKS)
+def test_object_frame_features(task):
+    """The features are the env's last 22 dims; ``obs_frame="world"`` normalises them (only them) to 0, "object" the
+    absolute orientations (only them), "both" none."""
+    env = cogail_envs.make_env(task)
+    dims = np.asarray(env.object_frame_dims)
+    assert len(dims) == 22 and dims[-1] == env.observation_size - 1
+    s = jax.jit(env.reset_from)(env.sample_init(jax.random.PRNGKey(3)))
+    obs = np.asarray(s.obs)[None].repeat(4, 0)
+    expert = {"obs": obs + np.arange(4)[:, None], "demo": np.array([0, 0, 1, 1])}
+    x = jnp.asarray(expert["obs"])
+
+    def normalised(frame):
+        norm = train.fit_normalizer(expert, 0.1, train.unread_dims(TrainConfig(task=task, obs_frame=frame), env))
+        return np.asarray((x - norm["mean"]) / norm["std"])
+
+    both, world, obj = normalised("both"), normalised("world"), normalised("object")
+    rot = np.asarray(env.orientation_dims)
+    assert len(rot) == 18 and not set(rot) & set(dims)
+    for unread, n in ((dims, world), (rot, obj)):
+        assert np.all(n[:, unread] == 0) and np.any(both[:, unread] != 0)
+        keep = np.setdiff1d(np.arange(env.observation_size), unread)
+        np.testing.assert_array_equal(both[:, keep], n[:, keep])

@@ -49,12 +49,27 @@ class Team:
     implement variations sets ``variations=False`` and ignores it.
     ``act(env, team_state, state, rng) -> (team_state, action)``: both agents' action ``concat(a_H, a_R)``.
     ``partner_can_follow``: ``init`` also takes ``variation | variations.FOLLOWING_PARTNER`` (a robot that
-    follows the human's apparent strategy under a change of mind, for the training sets' varied humans)."""
+    follows the human's apparent strategy under a change of mind, for the training sets' varied humans).
+
+    Closed-loop co-play (:mod:`cogail_jax.eval.coplay`) takes each agent of the team alone, against a partner
+    that is not its scripted teammate; both are optional (a task without them has no scripted co-play partner):
+
+    * ``human_act(env, team_state, state, rng) -> (team_state, a_H)``: the scripted human (and its variation),
+      seeing only what a person at the table sees: the physics state and its own plan and memory in
+      ``team_state``, never the robot's plan or phase;
+    * ``robot_act(env, team_state, state, rng) -> (team_state, a_R)``: the scripted robot, reading only the
+      physics state and its own fields: it infers from the state what the human does (has lifted, holds still,
+      has gone) and which strategy the human's moves show, never the human's phase or the shared plan.
+
+    Co-play gives each agent its own team state, from ``init`` with independent keys, so the robot's never holds
+    the human's plan."""
 
     init: Callable
     act: Callable
     variations: bool = False
     partner_can_follow: bool = False
+    human_act: Callable | None = None
+    robot_act: Callable | None = None
 
 
 @dataclass(frozen=True)

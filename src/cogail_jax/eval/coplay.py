@@ -161,14 +161,15 @@ def train_proxy(demos: dict, split: str, steps: int = 2000, seed: int = PROXY_SE
 
 
 # -------------------------------------------------------------------------------------------- the device program
-def episode_batch(env, names: list[str], episodes: int, robots: tuple = ("learned", "scripted")) -> dict:
-    """The co-play episodes of partners ``names`` (``partners(env)``), ``episodes`` each, with each of ``robots``
-    (``learned``, ``scripted``): ``key`` (E, 2), ``variation`` (E,), ``proxy``
+def episode_batch(env, names: list[str], episodes: int, robots: tuple = ("learned", "scripted"),
+                  first: int = 0) -> dict:
+    """The co-play episodes of partners ``names`` (``partners(env)``), ``episodes`` each (episodes ``first`` ..
+    ``first + episodes - 1``), with each of ``robots`` (``learned``, ``scripted``): ``key`` (E, 2), ``variation`` (E,), ``proxy``
     (E,) bool, ``scripted_robot`` (E,) bool, and the host-side ``partner`` / ``robot`` labels of each episode."""
     from cogail_envs.variations import variation_id
 
     keys = np.asarray(jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(COPLAY_SEED), i))(
-        jnp.arange(episodes)))
+        jnp.arange(first, first + episodes)))
     rows = {"key": [], "variation": [], "proxy": [], "scripted_robot": [], "partner": [], "robot": []}
     for robot in robots:
         for name in names:

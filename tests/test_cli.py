@@ -213,10 +213,10 @@ def test_the_installed_command_sets_the_flag_before_jax_starts():
 def _tiny_train_eval(run, train, held, validation) -> int:
     return cli.main(["train", "--task", "fetchq", "--run", str(run), "--demos", str(train), "--heldout", str(held),
                      "--validation", str(validation), "--num-envs", "4", "--unroll-length", "16", "--total-steps",
-                     "256", "--checkpoint-every", "2", "--bc-steps", "0", "--seeds", "3", "--no-robustness", "--no-coplay", "--eval",
+                     "256", "--checkpoint-every", "2", "--bc-steps", "0", "--seeds", "3", "--no-robustness", "--eval",
                      "--no-progress", "--set", "updates_per_call=2", "--set", "ppo_epochs=2", "--set",
                      "num_minibatches=2", "--set", "inner_updates=2", "--set", "inner_batch=32", "--set",
-                     "eval_codes=4"])
+                     "eval_codes=4", "--no-coplay"])
 
 
 def test_train_with_eval_prepares_the_evaluation_while_training(demo_files, fetchq, tmp_path, capsys):

@@ -88,9 +88,9 @@ def _add_config_args(t) -> None:
 
 def _add_coplay_args(p, prefix: str) -> None:
     p.add_argument("--coplay", action=argparse.BooleanOptionalAction, default=True,
-                   help=prefix + "also closed-loop co-play (default on): the robot at the reported checkpoints, and the "
-                        "task's scripted robot as reference, with a reacting human (the task's scripted human and its "
-                        "variations, seeing only the state; a human proxy behaviour-cloned on the test split); "
+                   help=prefix + "also closed-loop co-play (default on): the robot at the reported checkpoints, and "
+                        "the task's scripted robot as reference, with a reacting human (the task's scripted human "
+                        "and its variations, seeing only the state; a human proxy behaviour-cloned on the test split); "
                         "results.json's coplay, RUN/coplay.png")
     p.add_argument("--coplay-episodes", type=_positive, default=None, metavar="N",
                    help="co-play episodes per partner and robot (default 64 on an accelerator, 4 on a CPU)")

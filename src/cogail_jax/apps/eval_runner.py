@@ -487,7 +487,8 @@ def _write_eval_outputs(out_dir: Path, s: Setup, res: dict, at: dict, lat, sets:
                                       "checkpoint") is None:
             curves.unlink(missing_ok=True)  # an earlier evaluation's (with extra_curves): not these results
     if res.get("coplay"):
-        coplay_eval.figure(res["coplay"], out_dir / "coplay.png", title=f"{cfg.method} on {cfg.task}: closed-loop co-play")
+        coplay_eval.figure(res["coplay"], out_dir / "coplay.png",
+                           title=f"{cfg.method} on {cfg.task}: closed-loop co-play")
     task = get_task(cfg.task)
     if task.spots and all(k in at["interp_metrics"] for k in task.spots):  # where the strategy happened (Fig. 4a)
         protocol.write_spots(out_dir / f"{task.name}_spots.png", res, task.spots, at["interp_metrics"],

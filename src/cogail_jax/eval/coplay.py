@@ -164,8 +164,8 @@ def train_proxy(demos: dict, split: str, steps: int = 2000, seed: int = PROXY_SE
 def episode_batch(env, names: list[str], episodes: int, robots: tuple = ("learned", "scripted"),
                   first: int = 0) -> dict:
     """The co-play episodes of partners ``names`` (``partners(env)``), ``episodes`` each (episodes ``first`` ..
-    ``first + episodes - 1``), with each of ``robots`` (``learned``, ``scripted``): ``key`` (E, 2), ``variation`` (E,), ``proxy``
-    (E,) bool, ``scripted_robot`` (E,) bool, and the host-side ``partner`` / ``robot`` labels of each episode."""
+    ``first + episodes - 1``), with each of ``robots`` (``learned``, ``scripted``): ``key`` (E, 2), ``variation``
+    (E,), ``proxy`` (E,) bool, ``scripted_robot`` (E,) bool, and the host-side ``partner`` / ``robot`` labels of each episode."""
     from cogail_envs.variations import variation_id
 
     keys = np.asarray(jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(COPLAY_SEED), i))(
@@ -379,9 +379,10 @@ def figure(c: dict, out_png, title: str | None = None) -> Path:
         ax.bar(x + w / 2, [100 * ref.get(n, np.nan) for n in names], w, color="0.55", label="scripted robot")
     ax.set_xticks(x, names, rotation=20)
     ax.set_ylabel("co-play success (%)")
-    ax.set_ylim(0, 105)
+    ax.set_ylim(0, 122)
+    ax.set_yticks(range(0, 101, 20))
     ax.set_title(title or "Closed-loop co-play per human partner")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper center", ncol=2)
     fig.tight_layout()
     out_png = Path(out_png)
     out_png.parent.mkdir(parents=True, exist_ok=True)

@@ -52,13 +52,28 @@ class Team:
     follows the human's apparent strategy under a change of mind, for the training sets' varied humans).
     ``held_out``: ``init`` also takes ``variation | variations.POSE_HELDOUT``, an episode whose object pose or
     place lies in the team's held-out slice (outside every training, validation and test episode's range; the
-    ``pose_heldout`` evaluation set)."""
+    ``pose_heldout`` evaluation set).
+
+    Closed-loop co-play (:mod:`cogail_jax.eval.coplay`) takes each agent of the team alone, against a partner
+    that is not its scripted teammate; both are optional (a task without them has no scripted co-play partner):
+
+    * ``human_act(env, team_state, state, rng) -> (team_state, a_H)``: the scripted human (and its variation),
+      seeing only what a person at the table sees: the physics state and its own plan and memory in
+      ``team_state``, never the robot's plan or phase;
+    * ``robot_act(env, team_state, state, rng) -> (team_state, a_R)``: the scripted robot, reading only the
+      physics state and its own fields: it infers from the state what the human does (has lifted, holds still,
+      has gone) and which strategy the human's moves show, never the human's phase or the shared plan.
+
+    Co-play gives each agent its own team state, from ``init`` with independent keys, so the robot's never holds
+    the human's plan."""
 
     init: Callable
     act: Callable
     variations: bool = False
     partner_can_follow: bool = False
     held_out: bool = False
+    human_act: Callable | None = None
+    robot_act: Callable | None = None
 
 
 @dataclass(frozen=True)

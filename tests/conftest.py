@@ -82,6 +82,8 @@ FILE_WEIGHTS = {
     "test_portable.py": 31, "test_tasks.py": 60, "test_example_task.py": 60, "test_data_step.py": 45, "test_protocol.py": 30, "test_data.py": 25, "test_play.py": 23, "test_fetchq.py": 13,
 }
 
+FILE_WEIGHTS["test_coplay.py"] = 280  # three tasks' co-play programs compiled (MJX on the CPU)
+
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):

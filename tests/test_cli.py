@@ -216,7 +216,7 @@ def _tiny_train_eval(run, train, held, validation) -> int:
                      "256", "--checkpoint-every", "2", "--bc-steps", "0", "--seeds", "3", "--no-robustness", "--eval",
                      "--no-progress", "--set", "updates_per_call=2", "--set", "ppo_epochs=2", "--set",
                      "num_minibatches=2", "--set", "inner_updates=2", "--set", "inner_batch=32", "--set",
-                     "eval_codes=4"])
+                     "eval_codes=4", "--no-coplay"])
 
 
 def test_train_with_eval_prepares_the_evaluation_while_training(demo_files, fetchq, tmp_path, capsys):

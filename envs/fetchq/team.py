@@ -32,6 +32,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .env import BUTTON_R, BUTTONS, DESTS, DOOR_SPOTS, SPEED, TREASURES, _in_room
 from ..registry import Team
@@ -71,6 +72,8 @@ class TeamState(NamedTuple):
     decoy: jax.Array  # () int32 strategy whose first target the human heads for first
     decoy_n: jax.Array  # () int32 steps left of heading for it (0: none)
     watching: jax.Array  # () bool: the robot reads its strategy off the human (False: it keeps strategy[1])
+    # co-play only (``robot_act``): the human's position the robot saw last step (the default team ignores it)
+    seen: jax.Array = np.zeros((2,), np.float32)
 
 
 def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamState, jax.Array]:
@@ -255,4 +258,30 @@ def team_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.
     return new_ts, prev.reshape(-1)
 
 
-TEAM = Team(init=team_init, act=team_act, variations=True, partner_can_follow=False)
+def human_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.Array]:
+    """The scripted human alone (closed-loop co-play): its part of :func:`team_act`, which reads only the state
+    (both positions, the doors, who carries what) and the human's own plan; the robot's entries of the returned
+    team state are the scripted robot's bookkeeping, read by nobody."""
+    ts, action = team_act(env, ts, state, rng)
+    return ts, action[:2]
+
+
+def robot_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.Array]:
+    """The scripted robot alone (closed-loop co-play), on observables only: the human's heading is its
+    displacement since the last step (``seen``), not its last action, and the robot may (re)decide the strategy
+    while its own first phase lasts and the human is neither in a room nor carrying a treasure (instead of the
+    human's phase). The human's entries of ``ts`` are never read: they are replaced by what the robot sees."""
+    ps = state.pipeline_state
+    pos_h = ps["pos"][0]
+    heading = jnp.where(state.info["t"] > 0, (pos_h - ts.seen) / SPEED, 0.0)
+    busy = _in_room(pos_h, 0) | _in_room(pos_h, 1) | (ps["carry"][0] >= 0)
+    view = ts._replace(prev=ts.prev.at[0].set(heading), phase=ts.phase.at[0].set(busy.astype(jnp.int32)),
+                       watching=jnp.array(True))
+    new, action = team_act(env, view, state, rng)
+    out = ts._replace(**{f: getattr(ts, f).at[1].set(getattr(new, f)[1])
+                         for f in ("strategy", "phase", "delay", "prev", "curve")}, seen=pos_h)
+    return out, action[2:]
+
+
+TEAM = Team(init=team_init, act=team_act, variations=True, partner_can_follow=False, human_act=human_act,
+            robot_act=robot_act)

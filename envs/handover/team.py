@@ -63,6 +63,10 @@ DECOY_STEPS = (35, 61)
 YAW_RANGE, YAW_HELD = (0.0, 0.7), (0.7, 1.05)   # |yaw| of the presented bar: training range, held-out slice
 Z_RANGE, Z_HELD = (0.10, 0.30), (0.30, 0.35)    # handover height (bar centre, m)
 POSE_SALT = 4_242
+# what the co-play robot (``robot_act``) takes for the human's phases: the bar lifted (its centre this high, the
+# human grasping it), held still (moving less than STILL_SPEED per step for STILL_STEPS steps) once carried away
+# from its start (its centre past CARRIED_Y; every spot lies beyond)
+LIFTED_SEEN, STILL_SPEED, STILL_STEPS, CARRIED_Y = 0.03, 0.001, 8, -0.13
 
 
 def _rotz(yaw: jax.Array) -> jax.Array:
@@ -98,6 +102,10 @@ class TeamState(NamedTuple):
     wp_on: jax.Array      # (2,) bool: waypoint still to visit (reach, carry)
     decoy: jax.Array      # (3,) spot of another region the human carries to first
     decoy_n: jax.Array    # () int32 steps left of heading for it (0: none)
+    # co-play only (``robot_act``; the default team ignores them): the bar's position the robot saw last step, and
+    # for how many steps it has seen the bar held still
+    seen: jax.Array = np.zeros((3,), np.float32)
+    still: jax.Array = np.zeros((), np.int32)
 
 
 def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamState, jax.Array]:
@@ -249,10 +257,11 @@ def _human(env, ts: TeamState, c: dict):
     return target_h, yawt_h, grip_h, new_ph, anchor_h, wp_on, decoy_n
 
 
-def _robot(env, ts: TeamState, c: dict):
+def _robot(env, ts: TeamState, c: dict, seen: tuple | None = None):
     """The robot's phase machine: stage behind the bar's far end and above it, move over it once the human
     holds still, descend, close, wait for the human to let go, retreat. (target, yaw target, gripper, new
-    phase, anchor, next timer)."""
+    phase, anchor, next timer). ``seen``: (lifted, holding still, gone), what the co-play robot sees of the
+    human instead of its phase."""
     d, r = c["d"], env.robot
     ph = ts.phase[0]
     pr, tr = ts.phase[1], ts.timer[1]
@@ -265,11 +274,15 @@ def _robot(env, ts: TeamState, c: dict):
         [world_ctrl(d, r), stage_r, above_r, grasp_r, ts.anchor[1]], retreat_r)
     yawt_r = jnp.where((pr == R_WAIT) | (pr == R_RETREAT), yaw_r, obj_yaw)
     grip_r = jnp.where(pr >= R_CLOSE, -1.0, 1.0)
-    human_gone = (ph >= H_RETREAT) | (c["released"] & c["h_open"])
+    if seen is None:  # the team's robot sees the human's phase
+        lifted, holding = ph >= H_LIFT, ph >= H_HOLD
+        human_gone = (ph >= H_RETREAT) | (c["released"] & c["h_open"])
+    else:
+        lifted, holding, human_gone = seen
     adv_r = jnp.select(
         [pr == R_WAIT, pr == R_STAGE, pr == R_OVER, pr == R_DESCEND, pr == R_CLOSE],
-        [(ph >= H_LIFT) & (tr >= ts.delay[1]),
-         (ph >= H_HOLD) & _near(tcp_r, stage_r, 0.015),
+        [lifted & (tr >= ts.delay[1]),
+         holding & _near(tcp_r, stage_r, 0.015),
          _near(tcp_r, above_r, 0.01) & (jnp.abs(yaw_r - obj_yaw) < 0.05),
          _near(tcp_r, grasp_r, 0.006),
          c["r_grasp"] & human_gone & (tr >= 4)],
@@ -278,16 +291,17 @@ def _robot(env, ts: TeamState, c: dict):
     new_pr = jnp.where(regrasp_r, R_STAGE, pr + adv_r.astype(jnp.int32))
     anchor_r = jnp.where(adv_r & ((pr == R_DESCEND) | (pr == R_CLOSE)), tcp_r, ts.anchor[1])
     # robot wait timer only starts once the human carries
-    tr_next = jnp.where((pr == R_WAIT) & (ph < H_LIFT), 0, tr + 1)
+    tr_next = jnp.where((pr == R_WAIT) & ~lifted, 0, tr + 1)
     return target_r, yawt_r, grip_r, new_pr, anchor_r, tr_next
 
 
-def team_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.Array]:
+def team_act(env, ts: TeamState, state, rng: jax.Array, seen: tuple | None = None) -> tuple[TeamState, jax.Array]:
+    """Both agents' step (``seen``: the co-play robot's view of the human, :func:`robot_act`)."""
     d = state.pipeline_state
     h, r = env.human, env.robot
     c = _context(env, ts, state)
     target_h, yawt_h, grip_h, new_ph, anchor_h, wp_on, decoy_n = _human(env, ts, c)
-    target_r, yawt_r, grip_r, new_pr, anchor_r, tr_next = _robot(env, ts, c)
+    target_r, yawt_r, grip_r, new_pr, anchor_r, tr_next = _robot(env, ts, c, seen)
     ph, pr, th = ts.phase[0], ts.phase[1], ts.timer[0]
 
     k1, k2 = jax.random.split(rng)
@@ -317,4 +331,30 @@ def team_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.
     return ts, action
 
 
-TEAM = Team(init=team_init, act=team_act, variations=True, partner_can_follow=False, held_out=True)
+def human_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.Array]:
+    """The scripted human alone (closed-loop co-play): its part of :func:`team_act`, which reads only the state
+    (the bar, both grippers, whether the robot grasps the bar, the auto-release) and the human's own plan; the
+    robot's entries of the returned team state are the scripted robot's bookkeeping, read by nobody."""
+    ts, action = team_act(env, ts, state, rng)
+    return ts, action[:env.human_action_size]
+
+
+def robot_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.Array]:
+    """The scripted robot alone (closed-loop co-play), on observables only: instead of the human's phase it sees
+    the bar lifted in the human's grip, the bar held still once carried away from its start (``seen``, ``still``),
+    and the human gone (gripper open, not grasping). The human's entries of ``ts`` are never read."""
+    c = _context(env, ts, state)
+    p_obj = c["p_obj"]
+    moving = jnp.linalg.norm(p_obj - ts.seen) >= STILL_SPEED
+    still = jnp.where((state.info["t"] > 0) & ~moving, ts.still + 1, 0)
+    lifted = c["h_grasp"] & (p_obj[2] > LIFTED_SEEN)
+    holding = lifted & (still >= STILL_STEPS) & (p_obj[1] > CARRIED_Y)
+    gone = c["h_open"] & ~c["h_grasp"]
+    new, action = team_act(env, ts, state, rng, seen=(lifted, holding, gone))
+    out = ts._replace(**{f: getattr(ts, f).at[1].set(getattr(new, f)[1]) for f in ("phase", "timer", "vel", "anchor")},
+                      seen=p_obj.astype(jnp.float32), still=still.astype(jnp.int32))
+    return out, action[env.human_action_size:]
+
+
+TEAM = Team(init=team_init, act=team_act, variations=True, partner_can_follow=False, human_act=human_act,
+            robot_act=robot_act, held_out=True)

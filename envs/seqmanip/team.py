@@ -32,7 +32,7 @@ Poses and places (the ranges a person plausibly uses; the robot grasps the bar w
 * the handover spot (bar centre, strategy 1): x in [-0.20, 0.02], y in [-0.08, 0.01], z in [0.12, 0.26];
   held-out slice: z in (0.26, 0.31];
 * the human's waiting point with the bar (its TCP, strategy 2): x in [-0.09, 0.04], y in [-0.23, -0.14], z in
-  [0.16, 0.25]; held-out slice: z in (0.25, 0.30].
+  [0.18, 0.25]; held-out slice: z in (0.25, 0.30].
 
 Every default, training, validation and test episode lies in the training ranges; an episode drawn with
 ``variation | POSE_HELDOUT`` (the ``pose_heldout`` evaluation set) has either its yaw or its height (one of
@@ -99,8 +99,13 @@ NOISE_FACTOR = 3.0
 DECOY_STEPS = (35, 61)
 YAW_RANGE, YAW_HELD = (0.0, 0.7), (0.7, 1.05)   # |yaw| of the held bar: training range, held-out slice
 SPOT_LO, SPOT_HI, SPOT_Z_HELD = (-0.20, -0.08, 0.12), (0.02, 0.01, 0.26), (0.26, 0.31)
-WAIT_LO, WAIT_HI, WAIT_Z_HELD = (-0.09, -0.23, 0.16), (0.04, -0.14, 0.25), (0.25, 0.30)
+WAIT_LO, WAIT_HI, WAIT_Z_HELD = (-0.09, -0.23, 0.18), (0.04, -0.14, 0.25), (0.25, 0.30)
 POSE_SALT = 4_242
+# what the co-play agents see of each other (``human_act`` / ``robot_act``): the bar lifted (its centre this
+# high, the human grasping it), held still (moving less than STILL_SPEED per step for STILL_STEPS steps), the
+# human's TCP this high when it waits with the bar by the drawer (strategy 2; the lift stays below), and an agent
+# gone from the bar once its TCP is this far from it (gripper open, not touching)
+LIFTED_SEEN, STILL_SPEED, STILL_STEPS, WAIT_Z, AWAY = 0.03, 0.001, 6, 0.16, 0.06
 
 
 def _rotz(yaw: jax.Array) -> jax.Array:
@@ -167,6 +172,11 @@ class TeamState(NamedTuple):
     wp_on: jax.Array      # (2,) bool: waypoint still to visit (reach, carry)
     decoy_n: jax.Array    # () int32 steps left of carrying towards the other strategy's target (0: none)
     follows: jax.Array    # () bool: the robot takes the strategy the human's moves suggest (FOLLOWING_PARTNER)
+    # co-play only (``robot_act``; the default team ignores them): the bar's position the robot saw last step, for
+    # how many steps it has seen the bar held still, and the strategy it has read off the human (0: none yet)
+    seen: jax.Array = np.zeros((3,), np.float32)
+    still: jax.Array = np.zeros((), np.int32)
+    guess: jax.Array = np.zeros((), np.int32)
 
 
 def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamState, jax.Array]:
@@ -273,8 +283,9 @@ def _yaw_ok(c, i, tgt):
     return jnp.abs(mc.wrap_angle(c["yaw"][i] - tgt, np.pi)) < 0.05
 
 
-def _human(env, ts: TeamState, c: dict):
-    """The human's phase machine: (target, yaw target, gripper, gate, new phase, wp_on, decoy_n)."""
+def _human(env, ts: TeamState, c: dict, coplay: bool = False):
+    """The human's phase machine: (target, yaw target, gripper, gate, new phase, wp_on, decoy_n). ``coplay``: it
+    sees the robot's state instead of its phase (the robot gone from the bar; the robot holding the handle)."""
     d, h = c["d"], env.human
     ph, pr, th = ts.phase[0], ts.phase[1], ts.timer[0]
     s_h = ts.strategy[0] - 1
@@ -300,10 +311,15 @@ def _human(env, ts: TeamState, c: dict):
     grip = jnp.where(((ph >= H_CLOSE) & (ph <= H_OFFER) & ~offer_release)
                      | ((ph >= H_GRIP_HANDLE) & (ph <= H_PUSH))
                      | ((ph >= H_CARRY_WAIT) & (ph <= H_LOWER)), -1.0, 1.0)
+    if coplay:
+        robot_gone = c["gap_open"][1] & ~c["r_touch"] & (jnp.linalg.norm(c["tcp"][1] - c["p_obj"]) > AWAY)
+        robot_holds_open = c["r_handle"]
+    else:
+        robot_gone, robot_holds_open = pr == R_RETREAT, pr == R_HOLD_OPEN
     gate = _select(ph, {
         H_OFFER: c["r_grasp"],
-        H_HOLD_OPEN: c["placed"] & (pr == R_RETREAT),
-        H_WAIT_OPEN: (c["opening"] >= DRAWER_OPEN_MIN) & (pr == R_HOLD_OPEN)}, True)
+        H_HOLD_OPEN: c["placed"] & robot_gone,
+        H_WAIT_OPEN: (c["opening"] >= DRAWER_OPEN_MIN) & robot_holds_open}, True)
     near = lambda tgt, tol: _near(c, 0, tgt, tol)  # noqa: E731
     adv = _select(ph, {
         H_WAIT: th >= ts.delay[0],
@@ -353,8 +369,9 @@ def _human_variation(ts: TeamState, c: dict, target, adv, g_h, spot_h):
     return new_target, adv, wp_on, decoy_n
 
 
-def _robot(env, ts: TeamState, c: dict):
-    """The robot's phase machine: (target, yaw target or NaN (keep), gripper, gate, new phase)."""
+def _robot(env, ts: TeamState, c: dict, seen: dict | None = None):
+    """The robot's phase machine: (target, yaw target or NaN (keep), gripper, gate, new phase). ``seen``: what the
+    co-play robot sees of the human instead of its phase (:func:`robot_act`)."""
     d, r = c["d"], env.robot
     ph, pr, tr = ts.phase[0], ts.phase[1], ts.timer[1]
     s_r = ts.strategy[1] - 1
@@ -377,20 +394,26 @@ def _robot(env, ts: TeamState, c: dict):
     near = lambda tgt, tol: _near(c, 1, tgt, tol)  # noqa: E731
     near_h = lambda tgt, tol: _near(c, 0, tgt, tol)  # noqa: E731
     # a following robot takes the human's first leg of a change of mind for what it looks like
-    decoy = ts.follows & ((ph == H_CARRY) | (ph == H_CARRY_WAIT)) & (ts.decoy_n > 0)
-    gate = _select(pr, {
+    if seen is None:  # the team's robot sees the human's phase
+        decoy = ts.follows & ((ph == H_CARRY) | (ph == H_CARRY_WAIT)) & (ts.decoy_n > 0)
         # the robot reacts to what it can see (so a policy reading the state can tell the strategies
         # apart when the robot has to act): s1, the human carrying the bar has come past the middle
         # towards it; s2, the human holds the bar still at its waiting point by the drawer
-        R_WAIT: jnp.where(s_r == 0, (((ph >= H_CARRY) & (ph <= H_OFFER)) | decoy) & (tcp[0, 1] > CUE_Y),
-                          (ph == H_WAIT_OPEN) | (((ph == H_CARRY_WAIT) | decoy) & near_h(ts.wait_pt[0], 0.03))),
-        R_WAIT_OPEN: (c["opening"] >= DRAWER_OPEN_MIN) & (ph == H_HOLD_OPEN),
-        R_HOLD_OPEN: c["placed"] & (ph == H_RETREAT)}, True)
+        start = jnp.where(s_r == 0, (((ph >= H_CARRY) & (ph <= H_OFFER)) | decoy) & (tcp[0, 1] > CUE_Y),
+                          (ph == H_WAIT_OPEN) | (((ph == H_CARRY_WAIT) | decoy) & near_h(ts.wait_pt[0], 0.03)))
+        holds_open, gone, offers, let_go = ph == H_HOLD_OPEN, ph == H_RETREAT, ph == H_OFFER, ph >= H_BACKOFF
+    else:
+        start, holds_open, gone, offers, let_go = (seen[k] for k in ("start", "holds_open", "gone", "offers",
+                                                                     "let_go"))
+    gate = _select(pr, {
+        R_WAIT: start,
+        R_WAIT_OPEN: (c["opening"] >= DRAWER_OPEN_MIN) & holds_open,
+        R_HOLD_OPEN: c["placed"] & gone}, True)
     adv = _select(pr, {
         R_WAIT: tr >= ts.delay[1],
-        R_APPROACH: (ph == H_OFFER) & near(g_r + _up(0.07), 0.012) & _yaw_ok(c, 1, obj_yaw),
+        R_APPROACH: offers & near(g_r + _up(0.07), 0.012) & _yaw_ok(c, 1, obj_yaw),
         R_DESCEND: near(g_r, 0.006),
-        R_CLOSE: c["r_grasp"] & (ph >= H_BACKOFF) & ~c["h_touch"] & (tr >= 4),
+        R_CLOSE: c["r_grasp"] & let_go & ~c["h_touch"] & (tr >= 4),
         R_LIFT: near(lift_r, 0.015),
         R_HOVER: near(ts.wait_pt[1], 0.012),
         R_WAIT_OPEN: tr >= ts.react[1],
@@ -411,12 +434,15 @@ def _robot(env, ts: TeamState, c: dict):
     return target, yawt, grip, gate, new_pr
 
 
-def team_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.Array]:
+def team_act(env, ts: TeamState, state, rng: jax.Array, coplay: bool = False,
+             seen: dict | None = None) -> tuple[TeamState, jax.Array]:
+    """Both agents' step. ``coplay``: the human sees the robot's state instead of its phase (:func:`human_act`);
+    ``seen``: the co-play robot's view of the human (:func:`robot_act`)."""
     d = state.pipeline_state
     h, r = env.human, env.robot
     c = _context(env, ts, state)
-    target_h, yawt_h, grip_h, gate_h, new_ph, wp_on, decoy_n = _human(env, ts, c)
-    target_r, yawt_r, grip_r, gate_r, new_pr = _robot(env, ts, c)
+    target_h, yawt_h, grip_h, gate_h, new_ph, wp_on, decoy_n = _human(env, ts, c, coplay)
+    target_r, yawt_r, grip_r, gate_r, new_pr = _robot(env, ts, c, seen)
     ph, pr = ts.phase[0], ts.phase[1]
 
     # ---------------- actions
@@ -455,4 +481,55 @@ def team_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.
     return ts, action
 
 
-TEAM = Team(init=team_init, act=team_act, variations=True, partner_can_follow=True, held_out=True)
+def human_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.Array]:
+    """The scripted human alone (closed-loop co-play): its part of :func:`team_act` with the gates that read the
+    robot's phase replaced by what a person sees: the bar dropped into the drawer and the robot gone from it (gripper
+    open, not touching it, its TCP ``AWAY`` from it) before it shuts the drawer; the drawer open with the robot
+    holding the handle before it drops the bar. The robot's entries of the returned team state are the scripted
+    robot's bookkeeping, read by nobody."""
+    ts, action = team_act(env, ts, state, rng, coplay=True)
+    return ts, action[:env.human_action_size]
+
+
+# the robot's phases in which it holds nothing yet and may still change its mind about the strategy
+_UNCOMMITTED = (R_WAIT, R_APPROACH, R_DESCEND, R_TO_HANDLE, R_DESC_HANDLE)
+
+
+def robot_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax.Array]:
+    """The scripted robot alone (closed-loop co-play), on observables only. It reads the strategy off the human's
+    moves (``guess``), as the following robot of the training sets does: strategy 1 once the human with the bar
+    lifted has come past the middle of the table (TCP y > ``CUE_Y``), strategy 2 once the human holds the bar
+    still, high (TCP z > ``WAIT_Z``), on its own side; while it holds nothing yet a new reading makes it start over
+    from its waiting phase. Instead of the human's phase it sees the bar offered (held still past the middle), the
+    human's hand off the bar, the human holding the drawer's handle, and the human gone from the bar. The human's
+    entries of ``ts`` and the team's plan (``strategy``) are never read."""
+    c = _context(env, ts, state)
+    p_obj, tcp_h = c["p_obj"], c["tcp"][0]
+    still = jnp.where((state.info["t"] > 0) & (jnp.linalg.norm(p_obj - ts.seen) < STILL_SPEED), ts.still + 1, 0)
+    lifted = c["h_grasp"] & (p_obj[2] > LIFTED_SEEN)
+    held_still = lifted & (still >= STILL_STEPS)
+    cue1 = lifted & (tcp_h[1] > CUE_Y)
+    cue2 = held_still & (tcp_h[1] <= CUE_Y) & (tcp_h[2] > WAIT_Z)
+    pr = ts.phase[1]
+    free = jnp.any(jnp.stack([pr == p for p in _UNCOMMITTED]))
+    guess = jnp.where(free & cue1, 1, jnp.where(free & cue2, 2, ts.guess)).astype(jnp.int32)
+    seen = dict(start=jnp.where(guess == 1, cue1, cue2) & (guess > 0),
+                offers=held_still & (tcp_h[1] > CUE_Y),
+                let_go=c["gap_open"][0] & ~c["h_touch"],
+                holds_open=c["h_handle"],
+                gone=c["gap_open"][0] & ~c["h_touch"] & ~c["h_handle"] & (jnp.linalg.norm(tcp_h - p_obj) > AWAY))
+    view = ts._replace(strategy=ts.strategy.at[1].set(jnp.maximum(guess, 1)), follows=jnp.array(False))
+    new, action = team_act(env, view, state, rng, seen=seen)
+    switch = (ts.guess > 0) & (guess != ts.guess)  # a new reading: let go, start over from the waiting phase
+    phase = jnp.where(switch, R_WAIT, new.phase[1])
+    timer = jnp.where(switch, 0, new.timer[1])
+    anchor = jnp.where(switch, c["tcp"][1], new.anchor[1])
+    out = ts._replace(phase=ts.phase.at[1].set(phase), timer=ts.timer.at[1].set(timer),
+                      vel=ts.vel.at[1].set(new.vel[1]), anchor=ts.anchor.at[1].set(anchor),
+                      seen=p_obj.astype(jnp.float32), still=still.astype(jnp.int32), guess=guess)
+    a_r = action[env.human_action_size:]
+    return out, jnp.where(switch, a_r.at[-1].set(1.0), a_r)
+
+
+TEAM = Team(init=team_init, act=team_act, variations=True, partner_can_follow=True, human_act=human_act,
+            robot_act=robot_act, held_out=True)

@@ -86,6 +86,16 @@ def _add_config_args(t) -> None:
                    help="override any config field, e.g. --set lambda_a=2.0 (repeatable)")
 
 
+def _add_coplay_args(p, prefix: str) -> None:
+    p.add_argument("--coplay", action=argparse.BooleanOptionalAction, default=True,
+                   help=prefix + "also closed-loop co-play (default on): the robot at the reported checkpoints, and "
+                        "the task's scripted robot as reference, with a reacting human (the task's scripted human "
+                        "and its variations, seeing only the state; a human proxy behaviour-cloned on the test split); "
+                        "results.json's coplay, RUN/coplay.png")
+    p.add_argument("--coplay-episodes", type=_positive, default=None, metavar="N",
+                   help="co-play episodes per partner and robot (default 64 on an accelerator, 4 on a CPU)")
+
+
 def _keep_full(text: str) -> int | None:
     if text == "all":
         return None
@@ -139,6 +149,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "the varied humans replayed with a patient human (patient-*: handing an object over, it waits for the "
                         "robot to take the object)")
     t.add_argument("--extra-curves", action="store_true", help=EXTRA_CURVES_HELP)
+    _add_coplay_args(t, "with --eval: ")
     t.add_argument("--devices", default=None,
                    help="shard the seed axis over N devices or 'all' (one program; seeds must split evenly)")
     t.add_argument("--keep-full", type=_keep_full, default=1, metavar="N",
@@ -167,6 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "RUN/robustness.png; on tasks with a patient human (the env's replay_hold) also patient-test and "
                         "patient-robust-<variation>: the same humans waiting, as they hand an object over, for the robot")
     e.add_argument("--extra-curves", action="store_true", help=EXTRA_CURVES_HELP)
+    _add_coplay_args(e, "")
     e.add_argument("--extra-set", action="append", default=[], metavar="NAME=FILE.hdf5",
                    help="like --replay-file, under the name NAME (repeatable); a NAME starting with patient- is "
                         "replayed with a patient human where the task has one (the env's replay_hold)")
@@ -415,7 +427,8 @@ def _dispatch(a) -> int:
         print(f"trained: {run}")
         if a.eval:
             res = eval_run(run, progress=not a.no_progress, robustness=a.robustness, memory=kept,
-                           extra_curves=a.extra_curves, prepared=prep)
+                           extra_curves=a.extra_curves, prepared=prep, coplay=a.coplay,
+                           coplay_episodes=a.coplay_episodes)
             print((Path(run) / "results.md").read_text())
             del res
         return 0
@@ -433,7 +446,8 @@ def _dispatch(a) -> int:
             eval_extra_sets(a.run, sets)  # the checkpoints are chosen already: replay the extra sets only
         else:
             eval_run(a.run, progress=not a.no_progress, every=a.every, extra_sets=sets, ckpt_batch=a.ckpt_batch,
-                     robustness=a.robustness, extra_curves=a.extra_curves)
+                     robustness=a.robustness, extra_curves=a.extra_curves, coplay=a.coplay,
+                     coplay_episodes=a.coplay_episodes)
         print((Path(a.run) / "results.md").read_text())
         for name, f in sets.items():
             out = replay_results_dir(a.run, name)

@@ -19,6 +19,7 @@ from ..data import manifest
 from ..data import sets as data_sets
 from ..eval import rollouts
 from ..eval import protocol
+from ..eval import coplay as coplay_eval
 from ..runtime import tblog, timing
 from ..algo.config import ConfigError, TrainConfig
 from .runs import Policies, RunError, Setup, _eval_tree, build, total_updates
@@ -176,7 +177,7 @@ def eval_extra_sets(run_dir: str | Path, extra_sets: dict[str, str | Path]) -> d
 def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_file: str | Path | None = None,
              extra_sets: dict[str, str | Path] | None = None, ckpt_batch: int | None = None,
              robustness: bool = False, memory: dict | None = None, extra_curves: bool = False,
-             prepared: EvalInputs | None = None) -> dict:
+             prepared: EvalInputs | None = None, coplay: bool = False, coplay_episodes: int | None = None) -> dict:
     """Evaluate every checkpoint of a run; write results.json / results.md and figures into the run dir.
 
     Every checkpoint and seed is evaluated on the test split (replay, interpolation, latent codes) and on the
@@ -206,6 +207,11 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
 
     ``memory``: {update: ``eval_params``} kept by the training loop (``train_run(..., keep=...)``): those
     checkpoints are not read back from disk (the same values: the results are the same).
+
+    ``coplay``: also closed-loop co-play (:mod:`cogail_jax.eval.coplay`): the learned robot at the selected and the
+    paper-protocol replay checkpoints, and the task's scripted robot as reference, each with every partner (the
+    scripted human, each of its variations, a human proxy behaviour-cloned on the test split), ``coplay_episodes``
+    episodes per partner (default ``coplay.default_episodes()``); results.json's ``coplay``, RUN/coplay.png.
 
     ``prepared``: the run's ``EvalInputs`` made already, or the ``EvalPrep`` making them while training runs (waited
     for in the eval phase's set-up); its extra sets and ``extra_curves`` then stand for the arguments'.
@@ -241,6 +247,9 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
         with part_clock("extra_sets"):
             if sets and not inp.extra_curves:
                 res["extra_sets"] = _replay_extra_sets(s, store, res, sets, memory, eps, inp.replay_fn)
+        if coplay:
+            with part_clock("coplay"):
+                res["coplay"] = _coplay(s, store, res, memory, coplay_episodes)
     with clock("write"):
         _write_eval_outputs(run_dir, s, res, at, lat, sets, robustness)
     if prepared is not None:
@@ -248,6 +257,14 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     timing.write(run_dir, timing.merge_eval(timing.read(run_dir), clock, part_clock, compiles.table(),
                                             **timing.device_info()))
     return res
+
+
+def _coplay(s: Setup, store: Policies, res: dict, memory: dict | None, episodes: int | None) -> dict:
+    """results.json's ``coplay``: co-play at the selected and the paper-protocol replay checkpoints
+    (``coplay.evaluate``)."""
+    cks = _extra_set_checkpoints(res)
+    states = {st: _checkpoint_params(store, memory, st) for st in sorted(set(cks.values()))}
+    return coplay_eval.evaluate(s, {key: (st, states[st]) for key, st in cks.items()}, episodes)
 
 
 @dataclass
@@ -469,6 +486,9 @@ def _write_eval_outputs(out_dir: Path, s: Setup, res: dict, at: dict, lat, sets:
         if rfig.robustness_curve_figure(res, curves, title=f"{cfg.method} on {cfg.task}: varied humans per "
                                       "checkpoint") is None:
             curves.unlink(missing_ok=True)  # an earlier evaluation's (with extra_curves): not these results
+    if res.get("coplay"):
+        coplay_eval.figure(res["coplay"], out_dir / "coplay.png",
+                           title=f"{cfg.method} on {cfg.task}: closed-loop co-play")
     task = get_task(cfg.task)
     if task.spots and all(k in at["interp_metrics"] for k in task.spots):  # where the strategy happened (Fig. 4a)
         protocol.write_spots(out_dir / f"{task.name}_spots.png", res, task.spots, at["interp_metrics"],

@@ -210,6 +210,13 @@ def _headline(res: dict) -> list[tuple[str, str]]:
             pp = res["paper_protocol"].get(col)
             if isinstance(pp, dict):
                 out.append((f"{col}, paper protocol (ckpt {pp.get('checkpoint')})", f(pp)))
+        cp = res.get("coplay")
+        if isinstance(cp, dict) and isinstance((cp.get("learned") or {}).get("selected"), dict):
+            sel = cp["learned"]["selected"]  # closed-loop co-play with the scripted human and with the proxy
+            for name in ("scripted", "proxy"):
+                if isinstance(sel["success"].get(name), dict):
+                    out.append((f"co-play with the {name} human, selected (ckpt {sel['checkpoint']})",
+                                f(sel["success"][name])))
         return out
     for k in ("replay_success", "interpolation_success"):
         if isinstance(res.get(k), dict) and "mean" in res[k]:

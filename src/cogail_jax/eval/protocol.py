@@ -310,6 +310,10 @@ def results_markdown(res: dict) -> str:
         if res.get("train_varied"):
             lines += ["", f"The training set held {res['train_varied']} varied-human episodes of each variation "
                       "(train_varied): the robust-* sets are kinds of person the robot was trained on, not new ones."]
+    if res.get("coplay"):
+        from .coplay import markdown as coplay_markdown
+
+        lines += coplay_markdown(res["coplay"])
     return "\n".join(lines) + "\n"
 
 

@@ -1,0 +1,179 @@
+"""Closed-loop co-play (cogail_jax.eval.coplay): the scripted human sees only the state, the proxy learns from the
+test split alone, the scripted pair succeeds in co-play, and results.json carries the co-play entries."""
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from cogail_envs import get_task, make_env
+from cogail_envs.variations import CHANGE_OF_MIND
+
+from cogail_jax.eval import coplay
+
+LATER = 15  # robot B reacts this many steps later than robot A (or, where it has speeds, moves at half speed)
+
+
+def _other_plan(ts):
+    """The robot's team state with another internal plan: half its speed, else LATER more steps of delay."""
+    if "speed" in ts._fields:
+        return ts._replace(speed=ts.speed.at[1].multiply(0.5))
+    return ts._replace(delay=ts.delay.at[1].add(LATER))
+
+
+def _same_state(a, b):
+    leaves = jax.tree.leaves(jax.tree.map(lambda x, y: jnp.array_equal(x, y), (a.pipeline_state, a.info),
+                                          (b.pipeline_state, b.info)))
+    return jnp.all(jnp.stack(leaves))
+
+
+def _scramble(ts_h, ts_other):
+    """The human's team state with every per-agent entry of the robot (index 1 of each (2, ...) field) and the
+    co-play robot's own fields taken from another robot's team state."""
+    def mix(name, x, y):
+        if name in ("seen", "still", "guess"):
+            return y
+        return x.at[1].set(y[1]) if x.ndim and x.shape[0] == 2 else x
+
+    return ts_h._replace(**{f: mix(f, getattr(ts_h, f), getattr(ts_other, f)) for f in ts_h._fields})
+
+
+@pytest.fixture(scope="module")
+def two_robots():
+    """jitted ``f(task) -> (human actions (T, 3, Ah), states equal (T, 3))``: one scripted human (change of mind)
+    in three worlds, all from the same start and the same per-step keys, vmapped (the same code for each): 0
+    against the scripted robot A; 1 against robot B, the same robot with another internal plan
+    (``_other_plan``); 2 against robot A, with the robot's fields of the human's own team state scrambled at every
+    step. ``equal[t, w]``: world w's state at step t equals world 0's."""
+    fns = {}
+
+    def get(name):
+        if name not in fns:
+            env = make_env(name)
+            team = get_task(name).team
+
+            def run(key):
+                k_init, k_team, k_run = jax.random.split(key, 3)
+                state = env.reset_from(env.sample_init(k_init))
+                ts_h, _ = team.init(env, k_team, env.uniform_mix(), CHANGE_OF_MIND)
+                ts_a, _ = team.init(env, jax.random.fold_in(key, 1), env.uniform_mix(), 0)
+                other, _ = team.init(env, jax.random.fold_in(key, 2), env.uniform_mix(), 0)
+                stack = lambda *xs: jax.tree.map(lambda *v: jnp.stack(v), *xs)  # noqa: E731
+                lane = jnp.arange(3)
+
+                def step(s, h, r, k, w):
+                    kh, kr = jax.random.split(k)
+                    h = jax.tree.map(lambda x, y: jnp.where(w == 2, y, x), h, _scramble(h, other))
+                    h, a_h = team.human_act(env, h, s, kh)
+                    r, a_r = team.robot_act(env, r, s, kr)
+                    return env.step(s, jnp.concatenate([a_h, a_r])), h, r, a_h
+
+                def body(c, k):
+                    s, h, r = c
+                    equal = jax.vmap(lambda x: _same_state(jax.tree.map(lambda v: v[0], s), x))(s)
+                    s, h, r, a_h = jax.vmap(step, in_axes=(0, 0, 0, None, 0))(s, h, r, k, lane)
+                    return (s, h, r), (a_h, equal)
+
+                c = (stack(state, state, state), stack(ts_h, ts_h, ts_h), stack(ts_a, _other_plan(ts_a), ts_a))
+                _, out = jax.lax.scan(body, c, jax.random.split(k_run, env.max_episode_steps))
+                return out
+
+            fns[name] = jax.jit(run)
+        return fns[name]
+
+    return get
+
+
+@pytest.mark.parametrize("task", ["fetchq", "seqmanip"])
+def test_coplay_human_sees_only_the_state(two_robots, task):
+    """(a) The co-play human's actions do not change with the robot's internal state: against two robots that
+    differ in their plan only, they are identical up to the first step where the physical state differs; and
+    with the robot's fields of its own team state scrambled, identical at every step (and so is the world)."""
+    a_h, equal = jax.device_get(two_robots(task)(jax.random.PRNGKey(7)))
+    first_diff = int(np.argmin(equal[:, 1])) if not equal[:, 1].all() else len(equal)
+    assert 3 <= first_diff < len(equal)  # the robots' plans did show, but only after a while
+    np.testing.assert_array_equal(a_h[:first_diff + 1, 0], a_h[:first_diff + 1, 1])  # a_h[t] reads the state at t
+    np.testing.assert_array_equal(a_h[:, 0], a_h[:, 2])
+    assert equal[:, 2].all()
+
+
+@pytest.fixture(scope="module")
+def scripted_coplay():
+    """The co-play program of a task without a learned robot (scripted robot, scripted human), one per task."""
+    fns = {}
+
+    def get(name):
+        if name not in fns:
+            fns[name] = (make_env(name), None)
+            fns[name] = (fns[name][0], coplay.make_coplay_fn(fns[name][0]))
+        return fns[name]
+
+    return get
+
+
+@pytest.mark.parametrize("task", ["fetchq", "handover", "seqmanip"])
+def test_scripted_pair_succeeds_in_coplay(scripted_coplay, task):
+    """(c) The scripted human and the scripted robot, each on observables only, with their own team states
+    (the robot's drawn from its own key), still succeed."""
+    env, run = scripted_coplay(task)
+    assert coplay.partners(env)[0] == coplay.SCRIPTED and coplay.has_scripted_robot(env)
+    batch = coplay.episode_batch(env, [coplay.SCRIPTED], 6, ("scripted",), first=6)  # both seqmanip strategies
+    out = jax.device_get(run(None, None, None, batch))
+    assert out["success"].shape == (1, 6)
+    assert out["success"].mean() >= 5 / 6, out
+    if task == "seqmanip":
+        assert set(out["strategy"][0].tolist()) == {1, 2}, out
+
+
+def test_proxy_trains_on_the_test_split_only(demo_files, fetchq):
+    """(b) The proxy refuses any split but the test one, learns deterministically, and records what it learned
+    from (the test data's digest)."""
+    from cogail_jax.data import io as data
+    from cogail_jax.eval import rollouts
+
+    test = rollouts.heldout_arrays(data.load_demos(demo_files[1], fetchq, require_init=True))
+    with pytest.raises(coplay.CoplayError, match="test split"):
+        coplay.train_proxy(test, "validation", steps=5)
+    p1, info = coplay.train_proxy(test, "test", steps=50, file=demo_files[1])
+    p2, _ = coplay.train_proxy(test, "test", steps=50)
+    assert info["split"] == "test" and info["file"] == str(demo_files[1])
+    assert info["digest"] == coplay.data_digest(test["obs"], test["ah"], test["length"])
+    assert info["samples"] == int(np.sum(test["length"])) and info["loss"] < info["loss_curve"][0]
+    for a, b in zip(jax.tree.leaves(p1), jax.tree.leaves(p2)):
+        np.testing.assert_array_equal(a, b)
+    a_h = coplay.proxy_action(p1, jnp.asarray(test["obs"][0, :3]))
+    assert a_h.shape == (3, fetchq.human_action_size) and np.all(np.abs(np.asarray(a_h)) <= 1)
+
+
+def test_eval_run_reports_coplay(tiny_cfg, demo_files, fetchq, tmp_path):
+    """(d) results.json / results.md carry co-play per partner for the learned robot at the selected and the
+    paper-protocol checkpoints and for the scripted robot, the proxy's record (trained on the test split: its
+    digest is the test file's), and RUN/coplay.png is drawn."""
+    from cogail_jax.apps import eval_runner, train_loop
+    from cogail_jax.data import io as data
+    from cogail_jax.eval import rollouts
+
+    run = tmp_path / "run"
+    train_loop.train_run(tiny_cfg, run, progress=False)
+    eval_runner.eval_run(run, progress=False, coplay=True, coplay_episodes=1)
+    res = json.loads((run / "results.json").read_text())
+    c = res["coplay"]
+    names = ["scripted", "slow", "fast", "pauses", "detour", "noise", "change_of_mind", "proxy"]
+    assert c["partners"] == names and c["episodes"] == 1
+    assert c["learned"]["selected"]["checkpoint"] == res["selected"]["checkpoint"]
+    assert c["learned"]["paper_protocol"]["checkpoint"] == res["paper_protocol"]["replay"]["checkpoint"]
+    for key in ("selected", "paper_protocol"):
+        succ = c["learned"][key]["success"]
+        assert list(succ) == names
+        assert all(set(e["per_seed"]) == {"3", "5"} and 0 <= e["mean"] <= 1 for e in succ.values())
+    assert list(c["scripted_robot"]) == names and c["scripted_robot"]["scripted"] == 1.0
+    test = rollouts.heldout_arrays(data.load_demos(demo_files[1], fetchq, require_init=True))
+    val = rollouts.heldout_arrays(data.load_demos(demo_files[2], fetchq, require_init=True))
+    p = c["proxy"]
+    assert p["split"] == "test" and p["file"] == res["splits"]["test"]["file"] == str(demo_files[1])
+    assert p["digest"] == coplay.data_digest(test["obs"], test["ah"], test["length"])
+    assert p["digest"] != coplay.data_digest(val["obs"], val["ah"], val["length"])
+    assert p["success_with_scripted_robot"] == c["scripted_robot"]["proxy"] and p["loss"] > 0
+    md = (run / "results.md").read_text()
+    assert "Closed-loop co-play" in md and "| change_of_mind |" in md and "| proxy |" in md
+    assert (run / "coplay.png").stat().st_size > 0

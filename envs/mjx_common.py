@@ -444,15 +444,17 @@ def tcp_pose_base(d: mjx.Data, g: Gripper) -> jax.Array:
 def object_frame_features(d: mjx.Data, g: Gripper, p_obj: jax.Array, R_obj: jax.Array, half_len: float) -> jax.Array:
     """(11,) object-centric features of one agent and a bar-like object (long axis: the object's local y):
     the bar's two ends relative to the agent's TCP in the agent's base frame (the frame its actions move in;
-    3 + 3), the yaw of the TCP relative to the bar as ``(sin 2d, cos 2d)`` (two-finger grippers and bars are
-    symmetric under half a turn; 2) and the TCP's position in the object's frame (3). They look the same
-    wherever the object is and however it is turned, which is what a policy needs to grasp it there."""
+    3 + 3), the yaw of the TCP relative to the bar, wrapped to [-pi/2, pi/2) (two-finger grippers and bars are
+    symmetric under half a turn), and its magnitude (2), and the TCP's position in the object's frame (3). They
+    look the same wherever the object is and however it is turned, which is what a policy needs to grasp it
+    there; the relative yaw is linear, not a point on a circle, so a larger turn than the demonstrations' reads
+    as more of the same."""
     B = jnp.asarray(g.base_mat.T)
     tcp = tcp_pos(d, g)
     axis = R_obj[:, 1] * half_len
-    dyaw = yaw_of(tcp_mat(d, g)) - yaw_of(R_obj)
+    dyaw = wrap_angle(yaw_of(tcp_mat(d, g)) - yaw_of(R_obj), np.pi)
     return jnp.concatenate([B @ (p_obj + axis - tcp), B @ (p_obj - axis - tcp),
-                            jnp.stack([jnp.sin(2 * dyaw), jnp.cos(2 * dyaw)]), R_obj.T @ (tcp - p_obj)])
+                            jnp.stack([dyaw, jnp.abs(dyaw)]), R_obj.T @ (tcp - p_obj)])
 
 
 def finger_gap(d: mjx.Data, g: Gripper) -> jax.Array:

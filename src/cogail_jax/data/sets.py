@@ -17,6 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from cogail_envs import get_task
+from cogail_envs.variations import HELD_OUT
 
 from . import io, varied
 
@@ -54,14 +55,22 @@ def split_path(cfg, split: str, make: bool = False, env=None, verbose: bool = Tr
 
 
 def robustness_paths(cfg, make: bool = False, env=None, verbose: bool = True) -> dict[str, Path]:
-    """``{"robust-<variation>": file}`` of the run's varied humans (the test split's); {} where the task's team has
-    no variations (or no team)."""
+    """``{"robust-<variation>": file}`` of the run's varied humans (the test split's), and where the task's team
+    draws a held-out pose slice, ``"validation-robust-pose_heldout"``: the validation split's episodes of that
+    slice (to choose settings by, as the test's are reported); {} where the task's team has no variations (or no
+    team)."""
     team = get_task(cfg.task).team
     if team is None or not team.variations:
         return {}
     env = env or _task_env(cfg)
-    return varied.ensure_robustness_sets(env, mix=cfg.mix, variations=varied.protocol_variations(env), verbose=verbose,
-                                         make=make)
+    names = varied.protocol_variations(env)
+    out = varied.ensure_robustness_sets(env, mix=cfg.mix, variations=names, verbose=verbose, make=make)
+    held = [v for v in names if v == HELD_OUT]
+    if held:
+        val = varied.ensure_robustness_sets(env, mix=cfg.mix, split=VALIDATION, variations=held, verbose=verbose,
+                                            make=make)
+        out.update({f"{VALIDATION}-{k}": v for k, v in val.items()})
+    return out
 
 
 def run_sets(cfg, robustness: bool = True, make: bool = False, verbose: bool = True) -> dict[str, Path]:

@@ -177,3 +177,9 @@ def test_eval_run_reports_coplay(tiny_cfg, demo_files, fetchq, tmp_path):
     md = (run / "results.md").read_text()
     assert "Closed-loop co-play" in md and "| change_of_mind |" in md and "| proxy |" in md
     assert (run / "coplay.png").stat().st_size > 0
+    # `cogail eval --coplay-only`: co-play again at the reported checkpoints, the other figures kept as they were
+    (run / "coplay.png").unlink()
+    again = eval_runner.eval_coplay(run, episodes=1)
+    assert again["coplay"] == json.loads(json.dumps(c)) and again["selected"] == res["selected"]
+    assert json.loads((run / "results.json").read_text()) == json.loads(json.dumps(again))
+    assert (run / "coplay.png").stat().st_size > 0

@@ -179,6 +179,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "patient-robust-<variation>: the same humans waiting, as they hand an object over, for the robot")
     e.add_argument("--extra-curves", action="store_true", help=EXTRA_CURVES_HELP)
     _add_coplay_args(e, "")
+    e.add_argument("--coplay-only", action="store_true",
+                   help="run co-play alone at the checkpoints results.json reports (e.g. after a change of the "
+                        "human proxy), keeping every other figure")
     e.add_argument("--extra-set", action="append", default=[], metavar="NAME=FILE.hdf5",
                    help="like --replay-file, under the name NAME (repeatable); a NAME starting with patient- is "
                         "replayed with a patient human where the task has one (the env's replay_hold)")
@@ -434,7 +437,7 @@ def _dispatch(a) -> int:
         return 0
     if a.command == "eval":
         from ..algo.config import ConfigError
-        from .eval_runner import eval_extra_sets, eval_run, replay_results_dir, results_current
+        from .eval_runner import eval_coplay, eval_extra_sets, eval_run, replay_results_dir, results_current
 
         sets = {Path(f).stem: f for f in a.replay_file}
         for item in a.extra_set:
@@ -442,7 +445,9 @@ def _dispatch(a) -> int:
                 raise ConfigError(f"--extra-set needs NAME=FILE, got {item!r}")
             name, f = item.split("=", 1)
             sets[name] = f
-        if sets and not a.reevaluate and results_current(a.run, a.every):
+        if a.coplay_only:
+            eval_coplay(a.run, a.coplay_episodes)
+        elif sets and not a.reevaluate and results_current(a.run, a.every):
             eval_extra_sets(a.run, sets)  # the checkpoints are chosen already: replay the extra sets only
         else:
             eval_run(a.run, progress=not a.no_progress, every=a.every, extra_sets=sets, ckpt_batch=a.ckpt_batch,

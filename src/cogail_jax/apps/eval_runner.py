@@ -267,6 +267,25 @@ def _coplay(s: Setup, store: Policies, res: dict, memory: dict | None, episodes:
     return coplay_eval.evaluate(s, {key: (st, states[st]) for key, st in cks.items()}, episodes)
 
 
+def eval_coplay(run_dir, episodes: int | None = None) -> dict:
+    """Co-play alone, for an evaluated run: at the checkpoints its results.json reports (selected, paper protocol),
+    written into results.json's ``coplay``, results.md and RUN/coplay.png; nothing else is evaluated again."""
+    run_dir = Path(run_dir)
+    try:
+        res = json.loads((run_dir / "results.json").read_text())
+    except (OSError, ValueError):
+        raise RunError(f"{run_dir} has no results.json to add co-play to: evaluate it first (cogail eval --run "
+                       f"{run_dir})") from None
+    s = build(TrainConfig.load(run_dir / "config.json"), run_dir=run_dir)
+    store = Policies(run_dir)
+    store.s = s
+    res["coplay"] = _coplay(s, store, res, None, episodes)
+    protocol.save_results(run_dir, res)
+    coplay_eval.figure(res["coplay"], run_dir / "coplay.png",
+                       title=f"{s.cfg.method} on {s.cfg.task}: closed-loop co-play")
+    return res
+
+
 @dataclass
 class EvalInputs:
     """What evaluating a run needs before it reads a checkpoint: the set-up, the extra sets (name -> file) and
@@ -495,4 +514,4 @@ def _write_eval_outputs(out_dir: Path, s: Setup, res: dict, at: dict, lat, sets:
                              at["interp_success"], s.train_metrics, what=task.name)
 
 
-__all__ = ["eval_run", "eval_extra_sets", "EvalPrep", "results_current", "replay_results_dir", "default_ckpt_batch"]
+__all__ = ["eval_run", "eval_coplay", "eval_extra_sets", "EvalPrep", "results_current", "replay_results_dir", "default_ckpt_batch"]

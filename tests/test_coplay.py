@@ -141,7 +141,7 @@ def test_proxy_trains_on_the_test_split_only(demo_files, fetchq):
     assert info["samples"] == int(np.sum(test["length"])) and info["loss"] < info["loss_curve"][0]
     for a, b in zip(jax.tree.leaves(p1), jax.tree.leaves(p2)):
         np.testing.assert_array_equal(a, b)
-    a_h = coplay.proxy_action(p1, jnp.asarray(test["obs"][0, :3]))
+    a_h = coplay.proxy_action(p1, jnp.asarray(test["obs"][0, :3 * 4]).reshape(3, 4, -1))
     assert a_h.shape == (3, fetchq.human_action_size) and np.all(np.abs(np.asarray(a_h)) <= 1)
 
 

@@ -2,8 +2,8 @@
 
 The team draws the region from ``mix`` and then a continuous spot inside it (regions are separated by 5 cm
 gaps around the classification thresholds so every demo is labelled by its drawn region), the yaw at which
-the human presents the bar, speeds, reaction delays, pauses and action noise; motions are proportional control with velocity and
-acceleration limits (smooth, minimum-jerk-like bell-shaped speed profiles).
+the human presents the bar, speeds, reaction delays, pauses and action noise; motions are proportional control
+with velocity and acceleration limits (smooth, minimum-jerk-like bell-shaped speed profiles).
 
 Human: wait, reach above the bar, descend, close, lift, carry to the spot, hold still there until the robot
 has it (then let go), retreat. Robot: wait, stage behind the bar's far end, move over it once the human

@@ -42,6 +42,11 @@ class TrainConfig:
     # iterations, each doing more (2 made fetchq's update 13 % faster on an H100; BENCHMARKS.md)
     scan_unroll: int = 1
     updates_per_call: int = 10  # updates fused into one jitted call (lax.scan)
+    # the env batch as data parallelism (our addition, 1 = off): each seed's num_envs split into this many shards,
+    # each rolling out its share and drawing its share of every minibatch, with the updates' gradients averaged
+    # over the shards (algo/shards.py). A run on several devices (--devices) puts one shard per device; on one
+    # device the shards run side by side with the same arithmetic
+    env_shards: int = 1
     # how the seed axis runs on several devices (--devices): "shard_map" (one SPMD program), "per_device" (the
     # one-device program on each device, from threads) or "auto" (the task's default_config(), else per_device: an
     # MJX task's 2-device shard_map program crashes XLA's GPU compiler)
@@ -179,6 +184,13 @@ class TrainConfig:
                      "ppo_epochs", "num_minibatches", "inner_updates", "inner_batch", "eval_codes"):
             if getattr(self, name) <= 0:
                 raise ConfigError(f"{name.replace('_', '-')} must be positive, got {getattr(self, name)}")
+        if self.env_shards <= 0 or self.num_envs % self.env_shards or self.inner_batch % self.env_shards:
+            raise ConfigError(f"env-shards ({self.env_shards}) must be positive and divide num-envs ({self.num_envs}) "
+                              f"and inner-batch ({self.inner_batch}): pick a divisor of both")
+        if self.env_shards > 1 and (self.steps_per_update // self.env_shards) % self.num_minibatches:
+            raise ConfigError(
+                f"each of the {self.env_shards} env-shards' steps per update ({self.steps_per_update // self.env_shards}) "
+                f"must be divisible by num-minibatches ({self.num_minibatches})")
         if self.obs_frame not in OBS_FRAMES:
             raise ConfigError(f"obs_frame must be one of {', '.join(OBS_FRAMES)}, got {self.obs_frame!r}")
         if not self.obs_std_floor > 0:

@@ -47,13 +47,16 @@ def gae(rewards, values, dones, truncations, final_values, last_value, gamma, la
 LOG_RATIO_MAX = 20.0
 
 
-def ppo_loss(actor_apply, critic_apply, params, batch, clip_eps, value_coef, entropy_coef):
+def ppo_loss(actor_apply, critic_apply, params, batch, clip_eps, value_coef, entropy_coef, normalize_adv=True):
+    """Clipped PPO; ``normalize_adv=False``: the batch's advantages come normalised (over every env shard's
+    minibatch: ``shards.moments``)."""
     mean, log_std = actor_apply(params["actor"], batch["obs"], batch["z"])
     logp = gaussian_log_prob(mean, log_std, batch["action"])
     log_ratio = jnp.clip(logp - batch["logp"], -LOG_RATIO_MAX, LOG_RATIO_MAX)
     ratio = jnp.exp(log_ratio)
     adv = batch["adv"]
-    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+    if normalize_adv:
+        adv = (adv - adv.mean()) / (adv.std() + 1e-8)
     pg = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - clip_eps, 1 + clip_eps) * adv).mean()
     value = critic_apply(params["critic"], batch["obs"], batch["z"])
     v_loss = 0.5 * ((value - batch["ret"]) ** 2).mean()
@@ -308,7 +311,8 @@ def ppo_objective(cfg: TrainConfig, nets: Nets, params, batch, exp_batch):
     the demonstration's code, ``expert_code``); with ``L_z`` and no ``L_a`` (``lz_in_ppo``), + lambda_z x L_z on the
     minibatch's own generated steps, psi held fixed (InfoGAIL: the policy minimises the GAIL objective and
     lambda_z L_z together)."""
-    total, m = ppo_loss(nets.actor, nets.critic, params, batch, cfg.clip_eps, cfg.value_coef, cfg.entropy_coef)
+    total, m = ppo_loss(nets.actor, nets.critic, params, batch, cfg.clip_eps, cfg.value_coef, cfg.entropy_coef,
+                        normalize_adv=cfg.env_shards == 1)
     if "ppo_bc" in objective_terms(cfg):
         la, lr = behaviour_loss(_code_net(cfg, nets), nets.actor, params, exp_batch, nets.human_size,
                                 psi_grad=False, z=expert_code(cfg, params, exp_batch))

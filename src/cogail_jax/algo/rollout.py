@@ -12,6 +12,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from . import shards
 from .config import TrainConfig
 from .networks import gaussian_log_prob, normalize
 
@@ -32,15 +33,20 @@ def code_grid(n: int) -> jnp.ndarray:
     return jnp.stack(jnp.meshgrid(c, c, indexing="ij"), -1).reshape(-1, 2)
 
 
-def new_codes(cfg: TrainConfig, counter, done, key):
+def new_codes(cfg: TrainConfig, counter, done, key, stride: int = 1):
     """Codes for the envs whose episode (re)starts (``done``, (N,) bool): the next grid cells in cycle order
-    plus noise, clipped to [-1, 1] (zero for presets without a code). Returns ``(z, counter)``."""
+    plus noise, clipped to [-1, 1] (zero for presets without a code). Returns ``(z, counter)``. ``stride``: every
+    stride-th cell (an env shard's own cells, interleaved with the other shards')."""
     grid = code_grid(cfg.code_grid)
-    idx = counter + jnp.cumsum(done.astype(jnp.int32)) - 1
+    if stride == 1:
+        idx = counter + jnp.cumsum(done.astype(jnp.int32)) - 1
+    else:
+        idx = counter + stride * (jnp.cumsum(done.astype(jnp.int32)) - 1)
     noise = jax.random.uniform(key, (done.shape[0], cfg.code_dim), minval=-cfg.code_noise, maxval=cfg.code_noise)
     z = jnp.clip(grid[idx % grid.shape[0]] + noise, -1.0, 1.0)
     z = z if cfg.use_code else jnp.zeros_like(z)
-    return z, counter + jnp.sum(done.astype(jnp.int32))
+    count = jnp.sum(done.astype(jnp.int32))
+    return z, counter + (count if stride == 1 else stride * count)
 
 
 def initial_carry(cfg: TrainConfig, env, key_env, key_z) -> Carry:
@@ -58,8 +64,15 @@ def rollout(cfg: TrainConfig, env, actor, critic, params, norm, carry: Carry, ke
     Returns ``(carry, traj, last_value)``: ``traj`` holds (T, N) arrays of the step's inputs (obs, z, hist,
     prev_ah, first) and outputs (action, act = clipped action, logp, value, done, truncation, success,
     env_failed), and ``final_value``: the critic's value of the final observation of an episode the time limit
-    ended (0 at other steps); ``last_value`` is the value of the state after the last step."""
-    n, k, ah = cfg.num_envs, cfg.history, env.human_action_size
+    ended (0 at other steps); ``last_value`` is the value of the state after the last step.
+
+    With ``env_shards`` > 1 this is one shard's rollout (its ``carry`` holds its own envs; ``key`` its own): shard i
+    of E takes the cycle's cells i, i + E, i + 2E, ... from the counter on, and the returned counter is advanced by
+    every shard's new episodes (``shards.total``), the same on every shard."""
+    n, k, ah, e = shards.local_envs(cfg), cfg.history, env.human_action_size, shards.count(cfg)
+    counter0 = carry.code_counter
+    if e > 1:
+        carry = carry._replace(code_counter=counter0 + shards.index(cfg))
     # One batch of fresh episodes per rollout, not per step: an env whose episode ends takes its fresh state
     # (for MJX tasks a reset costs a forward pass, so resetting every env every step doubled the step's cost).
     # An env that ends twice within one unroll restarts from the same initial state (with a new code).
@@ -82,7 +95,7 @@ def rollout(cfg: TrainConfig, env, actor, critic, params, norm, carry: Carry, ke
               "logp": gaussian_log_prob(mean, log_std, a), "value": value, "done": done.astype(jnp.float32),
               "truncation": nxt.info.get("truncation", zero) * done, "next_obs": nxt.obs,
               "success": nxt.metrics["success"] * done, "env_failed": nxt.info.get("failed", zero)}
-        z_new, counter = new_codes(cfg, c.code_counter, done, k_code)
+        z_new, counter = new_codes(cfg, c.code_counter, done, k_code, stride=e)
 
         def pick(r, x):
             return jnp.where(done.reshape(done.shape + (1,) * (x.ndim - 1)), r, x)
@@ -93,6 +106,8 @@ def rollout(cfg: TrainConfig, env, actor, critic, params, norm, carry: Carry, ke
         return c, tr
 
     carry, traj = jax.lax.scan(body, carry, jax.random.split(key, cfg.unroll_length), unroll=cfg.scan_unroll)
+    if e > 1:
+        carry = carry._replace(code_counter=counter0 + shards.total(cfg, (carry.code_counter - counter0) // e))
     # the critic's value of a timed-out episode's last observation (the auto-reset replaced it in the carry)
     final_obs = normalize(norm, traj.pop("next_obs"))
     traj["final_value"] = jnp.where(traj["truncation"] > 0, critic(params["critic"], final_obs, traj["z"]), 0.0)

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from . import losses
+from . import losses, shards
 from .config import TrainConfig
 from .networks import disc_kind, gaussian_log_prob, history_input, make_networks, normalize
 from ..runtime.parallel import SeedChunk
@@ -220,9 +220,9 @@ def bc_step(ctx: Context, state: TrainState, expert):
 
     def body(carry, key):
         sub, opt = carry
-        b = sample_expert(state.norm, expert, key, cfg.inner_batch)
+        b = sample_expert(state.norm, expert, shards.key(cfg, key), shards.local_batch(cfg, cfg.inner_batch))
         loss, g = jax.value_and_grad(lambda p: losses.bc_objective(cfg, ctx.nets, {**state.params, **p}, b))(sub)
-        upd, opt = ctx.aux_tx.update(g, opt, sub)
+        upd, opt = ctx.aux_tx.update(shards.mean(cfg, g), opt, sub)
         return (optax.apply_updates(sub, upd), opt), loss
 
     sub = {"actor": state.params["actor"], "psi": state.params["psi"], "codes": state.params["codes"]}
@@ -230,7 +230,7 @@ def bc_step(ctx: Context, state: TrainState, expert):
     (sub, opt), bc = jax.lax.scan(body, (sub, state.aux_opt), keys)
     params = ema_update(cfg, {**state.params, **sub})
     state = state.replace(params=params, aux_opt=opt, rng=rng, update=state.update + 1)
-    return state, {"bc_loss": bc.mean(), "nonfinite": (~all_finite(state.params)).astype(jnp.float32)}
+    return state, {"bc_loss": shards.mean(cfg, bc.mean()), "nonfinite": (~all_finite(state.params)).astype(jnp.float32)}
 
 
 # ------------------------------------------------------------------------------------------------ inner updates
@@ -244,7 +244,7 @@ def aux_step(ctx: Context, params, aux_opt, gen_b, exp_b):
     sub = {"actor": params["actor"], "psi": params["psi"], "codes": params["codes"]}
     (_, m), g = jax.value_and_grad(
         lambda s: losses.aux_objective(ctx.cfg, ctx.nets, {**params, **s}, gen_b, exp_b), has_aux=True)(sub)
-    upd, aux_opt = ctx.aux_tx.update(g, aux_opt, sub)
+    upd, aux_opt = ctx.aux_tx.update(shards.mean(ctx.cfg, g), aux_opt, sub)
     return {**params, **optax.apply_updates(sub, upd)}, aux_opt, m
 
 
@@ -260,19 +260,20 @@ def disc_step(ctx: Context, params, disc_opt, gen_b, exp_b, key):
     (_, m), g = jax.value_and_grad(
         lambda p: losses.discriminator_loss(nets.disc, p, x_e, x_p, nets.disc_kind, cfg.gp_coef, key), has_aux=True
     )(params["disc"])
-    upd, disc_opt = ctx.disc_tx.update(g, disc_opt, params["disc"])
+    upd, disc_opt = ctx.disc_tx.update(shards.mean(cfg, g), disc_opt, params["disc"])
     return optax.apply_updates(params["disc"], upd), disc_opt, m
 
 
 def inner_updates(ctx: Context, state: TrainState, flat, expert, key):
     """``inner_updates`` x (aux_step, disc_step) on fresh minibatches of generated (``flat``) and expert data."""
     cfg, norm = ctx.cfg, state.norm
+    nb = shards.local_batch(cfg, cfg.inner_batch)  # this env shard's share of each minibatch
 
     def body(carry, key):
         params, aux_opt, disc_opt = carry
         k_g, k_e, k_gp = jax.random.split(key, 3)
-        gen = jax.tree.map(lambda x: x[jax.random.randint(k_g, (cfg.inner_batch,), 0, flat["obs"].shape[0])], flat)
-        exp_b = sample_expert(norm, expert, k_e, cfg.inner_batch)
+        gen = jax.tree.map(lambda x: x[jax.random.randint(k_g, (nb,), 0, flat["obs"].shape[0])], flat)
+        exp_b = sample_expert(norm, expert, k_e, nb)
         gen_b = {"obs": normalize(norm, gen["obs"]), "act": gen["act"], "hist": history_input(norm, gen["hist"]),
                  "prev_obs": normalize(norm, gen["hist"][:, -2]), "first": gen["first"], "z": gen["z"],
                  "prev_ah": gen["prev_ah"]}
@@ -296,7 +297,7 @@ def normalize_returns(cfg: TrainConfig, ret_rms, ret_acc, r, done):
         return ret * (1 - d_t), ret
 
     ret_acc, rets = jax.lax.scan(body, ret_acc, (r, done), unroll=cfg.scan_unroll)
-    b_mean, b_var, b_count = rets.mean(), rets.var(), rets.size
+    (b_mean, b_var), b_count = shards.moments(cfg, rets), rets.size * shards.count(cfg)
     delta = b_mean - ret_rms["mean"]
     tot = ret_rms["count"] + b_count
     mean = ret_rms["mean"] + delta * b_count / tot
@@ -349,7 +350,7 @@ def ppo_grad(ctx: Context, params, batch, exp_b, moves):
 def ppo_update(ctx: Context, state: TrainState, traj, adv, ret, key, expert):
     """``ppo_epochs`` of ``losses.ppo_objective`` over shuffled minibatches of the rollout (actor, critic)."""
     cfg, nets = ctx.cfg, ctx.nets
-    n, on = cfg.num_envs * cfg.unroll_length, losses.objective_terms(cfg)
+    n, on = shards.local_envs(cfg) * cfg.unroll_length, losses.objective_terms(cfg)
     obs_n = normalize(state.norm, traj["obs"]).reshape(n, -1)
     z, action = traj["z"].reshape(n, -1), traj["action"].reshape(n, -1)
     # log-probs under the co-policy as the inner (L_z / L_a) updates left it: the PPO ratio starts at 1
@@ -368,9 +369,13 @@ def ppo_update(ctx: Context, state: TrainState, traj, adv, ret, key, expert):
         idx, k_bc = x
         sub, opt = carry
         batch = jax.tree.map(lambda x: x[idx], flat)
-        exp_b = sample_expert(state.norm, expert, k_bc, cfg.inner_batch) if "ppo_bc" in on else None
+        if shards.count(cfg) > 1:  # the advantages normalised over every shard's minibatch together
+            a_mean, a_var = shards.moments(cfg, batch["adv"])
+            batch = {**batch, "adv": (batch["adv"] - a_mean) / (jnp.sqrt(a_var) + 1e-8)}
+        nb = shards.local_batch(cfg, cfg.inner_batch)
+        exp_b = sample_expert(state.norm, expert, k_bc, nb) if "ppo_bc" in on else None
         g, m = ppo_grad(ctx, {**state.params, **sub}, batch, exp_b, moves)
-        upd, opt = ctx.ppo_tx.update(g, opt, sub)
+        upd, opt = ctx.ppo_tx.update(shards.mean(cfg, g), opt, sub)
         return (optax.apply_updates(sub, upd), opt), m
 
     def epoch(carry, key):
@@ -390,6 +395,7 @@ def train_step(ctx: Context, state: TrainState, expert):
     if cfg.bc_only:
         return bc_step(ctx, state, expert)
     rng, k_roll, k_inner, k_ppo = jax.random.split(state.rng, 4)
+    k_roll, k_inner, k_ppo = (shards.key(cfg, k) for k in (k_roll, k_inner, k_ppo))  # each env shard its own
     carry, traj, last_value = rollout(cfg, ctx.env, ctx.nets.actor, ctx.nets.critic, state.params, state.norm,
                                       state.carry, k_roll)
     state = state.with_carry(carry).replace(rng=rng)
@@ -400,11 +406,11 @@ def train_step(ctx: Context, state: TrainState, expert):
                           cfg.gamma, cfg.gae_lambda, cfg.scan_unroll)
     state, ppo_m = ppo_update(ctx, state, traj, adv, ret, k_ppo, expert)
     state = state.replace(params=ema_update(cfg, state.params))
-    episodes = traj["done"].sum()
-    metrics = {**inner_m, **ppo_m, "reward": r_raw.mean(), "episodes": episodes,
-               "episode_success": traj["success"].sum() / jnp.maximum(episodes, 1.0),
-               "timeouts": traj["truncation"].sum(),  # episodes the time limit ended (bootstrapped)
-               "env_failures": traj["env_failed"].sum(),  # MJX steps that diverged (episode ended)
+    episodes = shards.total(cfg, traj["done"].sum())
+    metrics = {**shards.mean(cfg, {**inner_m, **ppo_m, "reward": r_raw.mean()}), "episodes": episodes,
+               "episode_success": shards.total(cfg, traj["success"].sum()) / jnp.maximum(episodes, 1.0),
+               # episodes the time limit ended (bootstrapped); MJX steps that diverged (episode ended)
+               **shards.total(cfg, {"timeouts": traj["truncation"].sum(), "env_failures": traj["env_failed"].sum()}),
                "nonfinite": (~all_finite(state.params)).astype(jnp.float32)}
     return state.replace(update=state.update + 1), metrics
 
@@ -430,9 +436,18 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             state, _ = bc_jit(state, expert)
         return state
 
-    def chunk(state, expert):
+    def chunk(state, expert):  # with env shards: one per device, shards.AXIS bound by parallel.SeedChunk's shard_map
         step = jax.vmap(partial(train_step, ctx), in_axes=(0, None))
         return jax.lax.scan(lambda s, _: step(s, expert), state, None, length=cfg.updates_per_call)
+
+    def chunk_here(state, expert):  # every env shard on this device, side by side: shards.AXIS bound by vmap
+        flags, e = env_leaves(state), shards.count(cfg)
+        split = jax.tree.map(lambda f, x: (x.reshape(x.shape[:1] + (e, x.shape[1] // e) + x.shape[2:]) if f else
+                                           jnp.broadcast_to(x[:, None], x.shape[:1] + (e,) + x.shape[1:])), flags, state)
+        step = jax.vmap(jax.vmap(partial(train_step, ctx), in_axes=(0, None), axis_name=shards.AXIS), in_axes=(0, None))
+        split, m = jax.lax.scan(lambda s, _: step(s, expert), split, None, length=cfg.updates_per_call)
+        state = jax.tree.map(lambda f, x: x.reshape(x.shape[:1] + (-1,) + x.shape[3:]) if f else x[:, 0], flags, split)
+        return state, jax.tree.map(lambda x: x[:, :, 0], m)  # (updates, seeds): the same on every shard
 
     def abstract(seeds, expert):  # init's output shapes (from kept programs: no tracing where they are found)
         key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
@@ -440,7 +455,17 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         return bc_jit.eval_shape(state, expert)[0] if cfg.bc_steps else state
 
     init.abstract = abstract
-    return init, SeedChunk(chunk, cfg.multi_device_mode, key=cfg), ctx.modules
+    one = chunk if shards.count(cfg) == 1 else chunk_here
+    return init, SeedChunk(one, cfg.multi_device_mode, key=cfg, env_fn=chunk, env_leaves=env_leaves), ctx.modules
+
+
+ENV_FIELDS = ("ret_acc", "env_state", "z", "hist", "prev_ah")  # TrainState's fields with an env axis
+
+
+def env_leaves(state: TrainState):
+    """``state``'s tree with True at every leaf that has an env axis (after the seed axis), False elsewhere."""
+    flags = jax.tree.map(lambda _: False, state)
+    return flags.replace(**{f: jax.tree.map(lambda _: True, getattr(state, f)) for f in ENV_FIELDS})
 
 
 # ------------------------------------------------------------------------------------------------ normaliser, codes
@@ -495,6 +520,6 @@ def demo_code_init(features: np.ndarray, code_dim: int, edge: float = 0.9) -> np
     return (edge * (2 * (ranks + 0.5) / n - 1)).astype(np.float32)
 
 
-__all__ = ["TrainState", "Context", "make_context", "make_train_fns", "train_step", "aux_step", "disc_step", "ppo_grad",
+__all__ = ["TrainState", "Context", "ENV_FIELDS", "env_leaves", "make_context", "make_train_fns", "train_step", "aux_step", "disc_step", "ppo_grad",
            "ppo_update", "bc_pretrain",
            "expert_arrays", "fit_normalizer", "unread_dims", "demo_code_init", "demo_features", "code_grid"]

@@ -45,11 +45,12 @@ def train_throughput(cfg, env, expert, norm, calls: int = 3, devices=None) -> di
 
     init, chunk, _ = train.make_train_fns(cfg, env, norm)
     state = init(cfg.seeds, expert)
-    state, expert = place_on_devices(state, expert, devices, len(cfg.seeds))
+    state, expert = place_on_devices(state, expert, devices, len(cfg.seeds), cfg.env_shards)
     t0 = time.time()
     state, m = chunk(state, expert)
     jax.block_until_ready(m)
     compile_s = time.time() - t0
+    first = params_digest(state.params)  # after the first call: compares layouts (one process or several)
     t0 = time.time()
     for _ in range(calls):
         state, m = chunk(state, expert)
@@ -57,7 +58,22 @@ def train_throughput(cfg, env, expert, norm, calls: int = 3, devices=None) -> di
     dt = time.time() - t0
     steps = calls * cfg.updates_per_call * cfg.steps_per_update * len(cfg.seeds)
     return {"num_envs": cfg.num_envs, "seeds": len(cfg.seeds), "env_steps_per_s": steps / dt,
-            "updates_per_s": calls * cfg.updates_per_call / dt, "compile_s": compile_s}
+            "updates_per_s": calls * cfg.updates_per_call / dt, "compile_s": compile_s,
+            "params_first_call": first, "params_last_call": params_digest(state.params)}
+
+
+def params_digest(params) -> str:
+    """SHA-256 of the parameters' bytes (gathered from every process): equal digests, equal parameters."""
+    import hashlib
+
+    import numpy as np
+
+    from ..runtime import distributed
+
+    h = hashlib.sha256()
+    for x in jax.tree.leaves(distributed.to_host(params)):
+        h.update(np.ascontiguousarray(x).tobytes())
+    return h.hexdigest()[:16]
 
 
 def _replicate_for_pmap(x, devices, axis_name="i"):
@@ -110,23 +126,32 @@ def brax_ppo_throughput(env, num_envs: int, unroll_length: int = 94, num_minibat
 
 
 def main(task: str, sizes=(64, 1024, 8192), out: str | None = None, env_only: bool = False,
-         steps: int = 200, peer: bool = True, unroll: int = 94, calls: int = 3, train_rows: bool = True) -> list[dict]:
+         steps: int = 200, peer: bool = True, unroll: int = 94, calls: int = 3, train_rows: bool = True,
+         seed_sets=((300,), (300, 400, 500)), devices=None, env_shards: int = 1, task_settings: bool = False,
+         updates_per_call: int | None = None, train_only: bool = False) -> list[dict]:
+    """The table's rows. ``devices``/``env_shards``: the train rows run as `cogail train --devices D --env-shards E`
+    (sizes: every seed's whole env batch, over all shards); ``task_settings``: their config is the task's own
+    settings (its ``default_config()``) instead of the field defaults."""
     import cogail_envs
 
     from ..data import io as data
     from ..algo import train
-    from ..algo.config import TrainConfig
+    from ..algo.config import TrainConfig, resolve
+    from ..runtime import distributed
 
     env = cogail_envs.make_env(task)
+    sizes_env = sizes
+    if distributed.processes() > 1 or train_only:  # the train rows only (several processes: printed by process 0)
+        env_only, peer, sizes_env = False, False, ()
     if train_rows and not env_only:  # the demonstrations feed the discriminator and the BC terms (the peer needs
         from ..data import sets       # none): found first, made by `cogail data --task T`
 
-        base = TrainConfig(task=task)
+        base = resolve(task) if task_settings else TrainConfig(task=task)
         demos = data.load_demos(sets.split_path(base, sets.TRAIN, env=env), env)
         expert = train.expert_arrays(demos, base.history)
         norm = train.fit_normalizer(expert, base.obs_std_floor)
     rows = []
-    for n in sizes:
+    for n in sizes_env:
         r = env_throughput(env, n, steps=steps)
         rows.append({"task": task, "kind": "env-only", **r})
         print(json.dumps(rows[-1]), flush=True)
@@ -135,12 +160,15 @@ def main(task: str, sizes=(64, 1024, 8192), out: str | None = None, env_only: bo
         _table(rows, out)
         return rows
     for n in sizes:
-        for seeds in ((300,), (300, 400, 500)) if train_rows else ():
-            cfg = base.replace(num_envs=n, seeds=seeds, unroll_length=unroll, updates_per_call=min(5, calls + 1),
-                               total_steps=n * unroll * 100,
-                               num_minibatches=4 if (n * unroll) % 4 == 0 else 1)
-            r = train_throughput(cfg, env, expert, norm, calls=calls)
-            rows.append({"task": task, "kind": "co-gail train_step", **r})
+        for seeds in seed_sets if train_rows else ():
+            cfg = base.replace(num_envs=n, seeds=seeds, unroll_length=unroll,
+                               updates_per_call=updates_per_call or min(5, calls + 1), total_steps=n * unroll * 100,
+                               num_minibatches=4 if (n * unroll // env_shards) % 4 == 0 else 1,
+                               env_shards=env_shards).validate()
+            r = train_throughput(cfg, env, expert, norm, calls=calls, devices=devices)
+            rows.append({"task": task, "kind": "co-gail train_step", **r, "env_shards": env_shards,
+                         "devices": jax.device_count() if devices == "all" else int(devices or 1),
+                         "processes": distributed.processes()})
             print(json.dumps(rows[-1]), flush=True)
             _write(rows, out)
         if peer:
@@ -153,6 +181,10 @@ def main(task: str, sizes=(64, 1024, 8192), out: str | None = None, env_only: bo
 
 
 def _table(rows, out):
+    from ..runtime import distributed
+
+    if not distributed.primary():
+        return
     print(f"{'task':9} {'kind':20} {'envs':>6} {'seeds':>5} {'env steps/s':>12} {'compile s':>9}")
     for r in rows:
         print(f"{r['task']:9} {r['kind']:20} {r['num_envs']:>6} {r.get('seeds', 1):>5} "
@@ -162,7 +194,9 @@ def _table(rows, out):
 
 def _write(rows, out):
     """The JSON is rewritten after every row, so a run cut by a time limit keeps the rows it finished."""
-    if out:
+    from ..runtime import distributed
+
+    if out and distributed.primary():
         Path(out).parent.mkdir(parents=True, exist_ok=True)
         Path(out).write_text(json.dumps({"device": str(jax.devices()[0]), "rows": rows}, indent=2))
 
@@ -176,8 +210,17 @@ def add_arguments(p) -> None:
     p.add_argument("--env-only", action="store_true", help="skip the train_step rows")
     p.add_argument("--no-peer", action="store_true", help="skip brax's PPO")
     p.add_argument("--peer-only", action="store_true", help="skip the Co-GAIL train_step rows (env-only and brax)")
+    p.add_argument("--train-only", action="store_true", help="the Co-GAIL train_step rows alone")
     p.add_argument("--unroll", type=int, default=94, help="rollout length per update")
     p.add_argument("--calls", type=int, default=3, help="timed train_step calls per row")
+    p.add_argument("--seeds", default=None, help="the train rows' seeds, e.g. 300 (default: one row with 300, one "
+                   "with 300,400,500)")
+    p.add_argument("--devices", default=None, help="the train rows over N devices or 'all' (as `cogail train`)")
+    p.add_argument("--env-shards", type=int, default=1, help="the train rows' env shards (as `cogail train`)")
+    p.add_argument("--task-settings", action="store_true",
+                   help="the train rows with the task's own settings (default: the config's field defaults)")
+    p.add_argument("--updates-per-call", type=int, default=None, help="updates per timed call (default calls + 1, "
+                   "at most 5)")
     p.add_argument("--matmul-precision", default=None, choices=("highest", "tensorfloat32", "bfloat16"),
                    help="compile the train_step rows under jax.default_matmul_precision(P) (default: JAX's, TF32 on "
                         "recent NVIDIA GPUs), to see how much of the update is matmul work")
@@ -213,8 +256,10 @@ def run_from_args(a) -> None:
 
         raise ConfigError("no task given: pass one, e.g. `cogail bench TASK` (or --phases RUN ...)")
     with jax.default_matmul_precision(a.matmul_precision):
+        seed_sets = ((300,), (300, 400, 500)) if a.seeds is None else (tuple(int(x) for x in a.seeds.split(",")),)
         main(a.task, tuple(int(x) for x in a.sizes.split(",")), a.out, a.env_only, a.steps, not a.no_peer,
-             a.unroll, a.calls, not a.peer_only)
+             a.unroll, a.calls, not a.peer_only, seed_sets, a.devices, a.env_shards, a.task_settings,
+             a.updates_per_call, a.train_only)
 
 
 def cli(argv=None):

@@ -73,6 +73,9 @@ def _add_config_args(t) -> None:
     t.add_argument("--config", default=None, help="JSON file of config fields, over the task's settings")
     t.add_argument("--total-steps", type=_positive, default=None, help="env steps per seed")
     t.add_argument("--num-envs", type=_positive, default=None, help="parallel environments per seed")
+    t.add_argument("--env-shards", type=_positive, default=None, metavar="N",
+                   help="split each seed's envs into N shards that average their updates' gradients: one per device "
+                        "with --devices (N devices train one policy on N x the envs of one), side by side on one")
     t.add_argument("--unroll-length", type=_positive, default=None, help="rollout steps per env per update")
     t.add_argument("--checkpoint-every", type=_positive, default=None, help="updates between checkpoints")
     t.add_argument("--bc-steps", type=int, default=None, help="behaviour-cloning pre-training steps (0 = off)")
@@ -94,6 +97,23 @@ def _add_coplay_args(p, prefix: str) -> None:
                         "results.json's coplay, RUN/coplay.png")
     p.add_argument("--coplay-episodes", type=_positive, default=None, metavar="N",
                    help="co-play episodes per partner and robot (default 64 on an accelerator, 4 on a CPU)")
+
+
+def _add_distributed_args(p) -> None:
+    g = p.add_argument_group("several processes (one per host or per GPU; README, \"Several GPUs and hosts\")")
+    g.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                   help="process 0's address, where every process of the run meets")
+    g.add_argument("--num-processes", type=_positive, default=None, metavar="N", help="how many processes the run has")
+    g.add_argument("--process-id", type=int, default=None, metavar="I", help="this process's index, 0..N-1 "
+                   "(process 0 writes the run folder)")
+    g.add_argument("--cluster", action="store_true",
+                   help="take the three from the cluster scheduler's environment (SLURM, Open MPI, Kubernetes)")
+
+
+def jax_process_index() -> int:
+    import jax
+
+    return jax.process_index()
 
 
 def _keep_full(text: str) -> int | None:
@@ -151,7 +171,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--extra-curves", action="store_true", help=EXTRA_CURVES_HELP)
     _add_coplay_args(t, "with --eval: ")
     t.add_argument("--devices", default=None,
-                   help="shard the seed axis over N devices or 'all' (one program; seeds must split evenly)")
+                   help="spread the run over N devices or 'all' (one program): the env shards (--env-shards) and the "
+                        "seeds (as many devices as split them evenly); with several processes every process's devices")
+    _add_distributed_args(t)
     t.add_argument("--keep-full", type=_keep_full, default=1, metavar="N",
                    help="how many of the newest whole training states RUN/checkpoints/ keeps (default 1: the newest, "
                         "which --resume continues from), or 'all'; every checkpoint's delivered policy (what eval, "
@@ -222,6 +244,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .bench import add_arguments as _bench_args
 
     _bench_args(b)
+    _add_distributed_args(b)
 
     v = sub.add_parser("video", help="render scripted demonstrations or a run's rollouts (interpolation and replay)",
                        description="Write a GIF/MP4 of episodes: scripted demos of --task, or, with --run, a grid "
@@ -325,7 +348,7 @@ def _config_from_args(a) -> "TrainConfig":  # noqa: F821
         except json.JSONDecodeError as e:
             raise ConfigError(f"config file {path} is not valid JSON ({e.msg} at line {e.lineno})")
         fields.pop("_comment", None)
-    for key in ("task", "method", "seeds", "total_steps", "num_envs", "unroll_length", "checkpoint_every",
+    for key in ("task", "method", "seeds", "total_steps", "num_envs", "env_shards", "unroll_length", "checkpoint_every",
                 "bc_steps", "demos", "heldout", "validation", "mix"):
         val = getattr(a, key)
         if val is not None:
@@ -359,6 +382,10 @@ def main(argv=None) -> int:
     from .runs import RunError
 
     try:
+        if hasattr(args, "coordinator"):  # before anything starts JAX's backend
+            from ..runtime.distributed import join
+
+            join(args.coordinator, args.num_processes, args.process_id, args.cluster)
         return _dispatch(args)
     except (ConfigError, DatasetError, RunError, CheckpointError, UnknownTaskError) as e:
         print(f"cogail {args.command}: error: {e}", file=sys.stderr)
@@ -421,19 +448,27 @@ def _dispatch(a) -> int:
         from .eval_runner import EvalPrep, eval_run
         from .train_loop import train_run
 
+        from ..runtime import distributed
+
         cfg = _config_from_args(a)
+        evaluates = a.eval and distributed.primary()  # of several processes, process 0 evaluates
         kept = {}  # with --eval, each checkpoint's evaluation parameters kept in memory: none is read back
-        prep = EvalPrep(a.run, a.robustness, a.extra_curves) if a.eval else None  # made ready while training runs
+        prep = EvalPrep(a.run, a.robustness, a.extra_curves) if evaluates else None  # made ready while training runs
         run = train_run(cfg, a.run, resume=a.resume, progress=not a.no_progress, devices=a.devices,
-                        keep=kept if a.eval else None, on_compiled=prep.start if prep else None,
+                        keep=kept if evaluates else None, on_compiled=prep.start if prep else None,
                         keep_full=a.keep_full)
+        if not distributed.primary():
+            print(f"process {jax_process_index()}: trained; process 0 writes {run}", flush=True)
+            distributed.barrier("done")  # until process 0 has written everything
+            return 0
         print(f"trained: {run}")
-        if a.eval:
+        if evaluates:
             res = eval_run(run, progress=not a.no_progress, robustness=a.robustness, memory=kept,
                            extra_curves=a.extra_curves, prepared=prep, coplay=a.coplay,
                            coplay_episodes=a.coplay_episodes)
             print((Path(run) / "results.md").read_text())
             del res
+        distributed.barrier("done")
         return 0
     if a.command == "eval":
         from ..algo.config import ConfigError

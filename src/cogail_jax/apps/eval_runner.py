@@ -316,7 +316,7 @@ def _eval_inputs(run_dir: Path, sets: dict[str, str], robustness: bool, extra_cu
 
 def _eval_struct(state) -> dict:
     """The shapes of ``eval_params(state)`` (on this process's first device, as it puts them)."""
-    dev = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+    dev = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
     return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=dev), _eval_tree(state))
 
 

@@ -141,7 +141,7 @@ def _eval_tree(state) -> dict:
 def eval_params(state) -> dict:
     """What evaluating a checkpoint reads of its state: the actor's and psi's parameters and the observation
     normaliser (seed axis first), on this process's first device, as ``checkpoint.restore`` puts them."""
-    return jax.device_put(_eval_tree(state), jax.devices()[0])
+    return jax.device_put(_eval_tree(state), jax.local_devices()[0])
 
 
 class Policies:

@@ -13,6 +13,7 @@ import jax
 import numpy as np
 
 from ..runtime import checkpoint as ckpt
+from ..runtime import distributed
 from ..data import manifest
 from ..runtime import timing
 from ..algo.config import TrainConfig
@@ -33,8 +34,11 @@ def _log_scalars(writers, metrics, update0, steps_per_update):
                                          for k, v in metrics.items()]), step)
 
 
-def seed_mesh(devices: str | int | None, num_seeds: int):
-    """A 1-D mesh over the devices that share the seed axis (``devices``: a number or "all"); None for one."""
+def seed_mesh(devices: str | int | None, num_seeds: int, env_shards: int = 1):
+    """The mesh a run's state is placed on (``devices``: a number or "all", of every process's devices), None for
+    one device: with ``env_shards`` > 1 and at least that many devices, an ``("seeds", "envs")`` mesh with one env
+    shard per device along "envs" (fewer devices: the shards run side by side on each), else a 1-D ``("seeds",)``
+    mesh; the seed axis takes as many of the remaining devices as split the seeds evenly."""
     from jax.sharding import Mesh
 
     avail = jax.devices()
@@ -43,27 +47,48 @@ def seed_mesh(devices: str | int | None, num_seeds: int):
         return None
     if n > len(avail):
         raise RunError(f"--devices {n} asked for more devices than the {len(avail)} visible ones")
-    while num_seeds % n:  # the seed axis must split evenly
-        n -= 1
-    if n <= 1:
-        return None
-    return Mesh(np.asarray(avail[:n]), ("seeds",))
+    e = env_shards if 1 < env_shards <= n else 1
+    s = n // e
+    while num_seeds % s:  # the seed axis must split evenly
+        s -= 1
+    if e == 1:
+        return None if s <= 1 else Mesh(np.asarray(avail[:s]), ("seeds",))
+    return Mesh(np.asarray(avail[:s * e]).reshape(s, e), ("seeds", "envs"))
 
 
-def place_on_devices(state, expert, devices, num_seeds):
-    """Shard the leading seed axis of the state over the mesh; replicate the demonstrations. One program:
-    jit follows the input shardings, so every device runs its seeds' rollouts and updates."""
-    mesh = seed_mesh(devices, num_seeds)
+def place_on_devices(state, expert, devices, num_seeds, env_shards: int = 1):
+    """Shard the leading seed axis of the state over the mesh, and the env axis of its env leaves
+    (``train.env_leaves``) over the mesh's "envs" axis; replicate the demonstrations. One program: jit follows the
+    input shardings, so every device runs its seeds' (and env shard's) rollouts and updates."""
+    mesh = seed_mesh(devices, num_seeds, env_shards)
     if mesh is None:
+        if distributed.processes() > 1:
+            raise RunError(f"a run of {distributed.processes()} processes has nothing to spread over their "
+                           f"{jax.device_count()} devices ({num_seeds} seed(s), env_shards={env_shards}): "
+                           f"pass --env-shards {jax.device_count()} (or a multiple of the seeds' count of devices)")
         return state, expert
     from jax.sharding import NamedSharding, PartitionSpec as P
 
+    from ..algo.train import env_leaves
+
+    envs = "envs" in mesh.axis_names
+    seeds = "seeds" if mesh.shape["seeds"] > 1 else None  # as jit writes its outputs' specs: no axis of size 1
     # Empty leaves (MJX's unused act / mocap / userdata fields, shape (seeds, envs, 0)) leave the sharded program
     # replicated: placing them so from the start keeps every call's input shardings equal to the previous call's
     # outputs (placed P("seeds") they made the second call compile the whole chunk again).
-    state = jax.tree.map(lambda x: jax.device_put(x, NamedSharding(mesh, P() if x.size == 0 else P("seeds"))), state)
-    expert = jax.device_put(expert, NamedSharding(mesh, P()))
+    specs = jax.tree.map(lambda f, x: P() if x.size == 0 else P(seeds, "envs") if f and envs else P(seeds) if seeds
+                         else P(), env_leaves(state), state)
+    state = jax.tree.map(lambda sp, x: global_put(x, NamedSharding(mesh, sp)), specs, state)
+    expert = jax.tree.map(lambda x: global_put(x, NamedSharding(mesh, P())), expert)
     return state, expert
+
+
+def global_put(x, sharding):
+    """``x`` (the same value in every process) placed with ``sharding``, whose devices may span processes."""
+    if jax.process_count() == 1:
+        return jax.device_put(x, sharding)
+    host = np.asarray(jax.device_get(x))
+    return jax.make_array_from_callback(host.shape, sharding, lambda idx: host[idx])
 
 
 @dataclass
@@ -135,7 +160,7 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
     if fresh:
         with clock("bc"):
             before_bc = None
-            if seed_mesh(devices, len(cfg.seeds)) is None:  # one device: the chunk compiles while BC runs
+            if seed_mesh(devices, len(cfg.seeds), cfg.env_shards) is None:  # one device: the chunk compiles while BC runs
                 def before_bc(st):
                     compiling.append(_compile_during_bc(s, st, on_compiled, parts))
             t0 = time.perf_counter()
@@ -144,17 +169,22 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
             for t in compiling:
                 t.join()
             parts.update(bc_run=t1 - t0, compile_wait=time.perf_counter() - t1)
-    state, s.expert = place_on_devices(state, s.expert, devices, len(cfg.seeds))
+    state, s.expert = place_on_devices(state, s.expert, devices, len(cfg.seeds), cfg.env_shards)
     here = ckpt.layout(state)
-    if fresh:
-        ckpt.save(mgr, 0, _for_checkpoint(s, state))  # (no policy: evaluation starts at the first checkpoint)
+    if fresh:  # (no policy: evaluation starts at the first checkpoint)
+        first = _for_checkpoint(s, state)
+        first = distributed.to_host(first) if distributed.processes() > 1 else first
+        if distributed.primary():
+            ckpt.save(mgr, 0, first)
+        del first
     else:
         saved = ckpt.saved_layout(mgr, start) or ckpt.run_layout(run_dir)
         if saved and (saved.get("device_count"), saved.get("device_kind")) != (here["device_count"],
                                                                               here["device_kind"]):
             print(f"restored {len(cfg.seeds)} seeds saved on {ckpt.describe(saved)} onto {ckpt.describe(here)}",
                   flush=True)
-    ckpt.record_layout(run_dir, here, start)
+    if distributed.primary():
+        ckpt.record_layout(run_dir, here, start)
     return state, start, bool(compiling)
 
 
@@ -170,7 +200,7 @@ def _postfix(metrics: dict, stats: LoopStats) -> dict:
 
 def _check_and_log(writers, metrics, update0: int, cfg: TrainConfig, saver) -> dict:
     """One call's metrics to the host: stop on non-finite parameters, else log them to TensorBoard."""
-    metrics = jax.device_get(metrics)
+    metrics = distributed.to_host(metrics)
     if np.any(metrics["nonfinite"] > 0):
         saver.wait()
         u = update0 + int(np.argmax(np.any(metrics["nonfinite"] > 0, axis=1))) + 1
@@ -193,8 +223,10 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
     from tqdm import tqdm
 
     cfg, upc, total = s.cfg, s.cfg.updates_per_call, total_updates(s.cfg)
-    writers = [FileWriter(str(run_dir / "tb" / f"seed_{sd}")) for sd in cfg.seeds]
-    bar = tqdm(total=total, initial=start, unit="upd", disable=not progress, dynamic_ncols=True, file=sys.stdout)
+    writes = distributed.primary()  # of several processes, process 0 alone writes (runtime.distributed)
+    writers = [FileWriter(str(run_dir / "tb" / f"seed_{sd}")) for sd in cfg.seeds] if writes else []
+    bar = tqdm(total=total, initial=start, unit="upd", disable=not (progress and writes), dynamic_ncols=True,
+               file=sys.stdout)
     saver = ckpt.BackgroundSaver(mgr, ckpt.manager(run_dir, folder=ckpt.POLICIES), json.loads(cfg.to_json()))
     stats, t_loop = LoopStats(start, []), time.perf_counter()
     pending = None  # (first update, device metrics, (update, state copy) or None) of the call not logged yet
@@ -207,7 +239,7 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
                 stats.steady_steps += upc * cfg.steps_per_update * len(cfg.seeds)
                 stats.steady_seconds = time.perf_counter() - t_loop - stats.call_seconds[0]
             bar.set_postfix(_postfix(_check_and_log(writers, m, u0, cfg, saver), stats))
-            if to_save is not None:
+            if to_save is not None and writes:
                 saver.submit(*to_save, policy=_eval_tree(to_save[1]))
                 if keep is not None:
                     keep[to_save[0]] = eval_params(to_save[1])
@@ -222,7 +254,10 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
                     on_compiled(s, state)
             u0, stats.update = stats.update, stats.update + upc
             at_ckpt = stats.update % cfg.checkpoint_every == 0 or stats.update >= total
-            copy = (stats.update, saver.copy(_for_checkpoint(s, state))) if at_ckpt else None
+            copy = None
+            if at_ckpt:  # several processes: every one takes part in gathering the state to the host
+                copy = (stats.update, saver.copy(_for_checkpoint(s, state)) if distributed.processes() == 1
+                        else distributed.to_host(_for_checkpoint(s, state)))
             if at_ckpt or (pending is not None and pending[2] is not None):  # copies one, or queues the last
                 stats.checkpoint_calls.add(len(stats.call_seconds))
             drain()
@@ -260,13 +295,21 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
     clock, compiles = timing.Phases(), timing.CompileLog()
     clock.take_process_start()  # the command's imports before this call count as "start"
     run_dir = Path(run_dir)
+    writes = distributed.primary()  # of several processes, process 0 alone writes the run folder
+    if distributed.processes() > 1 and devices is None:
+        devices = "all"  # every process's devices: one mesh
     with clock("start"):
-        cfg = prepare_run_dir(cfg, run_dir, resume)
-        from ..runtime.devices import cpu_warning, describe_devices  # where it runs; a CPU warning for paper-sized MJX runs
-        print("\n".join([describe_devices(), *cpu_warning(cfg)]), flush=True)
+        if writes:
+            cfg = prepare_run_dir(cfg, run_dir, resume)
+            from ..runtime.devices import cpu_warning, describe_devices  # a CPU warning for paper-sized MJX runs
+            print("\n".join([describe_devices(), *cpu_warning(cfg)]), flush=True)
+        distributed.barrier("prepared")
+        if not writes:  # the config process 0 wrote (the resumed run's own on --resume)
+            cfg = TrainConfig.load(run_dir / "config.json")
     with clock("demos"):  # found, not made (`cogail data` makes them), and recorded in RUN/data.json
-        s = build(cfg, need_heldout=False, run_dir=run_dir)
-        manifest.record_expert(run_dir, s.expert)
+        s = build(cfg, need_heldout=False, run_dir=run_dir if writes else None)
+        if writes:
+            manifest.record_expert(run_dir, s.expert)
     if keep_full is not None and keep_full < 1:
         raise RunError(f"--keep-full {keep_full}: a run keeps at least its newest training state (resume needs it); "
                        "pass 1 or more, or all")
@@ -278,6 +321,8 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
     clock.add("compile", compile_s)
     clock.add("train", stats.loop_seconds - compile_s)
     parts.update(timing.call_parts(stats.call_seconds, stats.checkpoint_calls))
+    if not writes:
+        return run_dir
     timing.write(run_dir, timing.merge_train(
         timing.read(run_dir) if resume else {}, clock, stats.steady_steps, stats.steady_seconds, resume, parts,
         compiles.table(), task=s.cfg.task, method=s.cfg.method, updates=stats.update, seeds=len(s.cfg.seeds),

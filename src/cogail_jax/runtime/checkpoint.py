@@ -50,10 +50,18 @@ FULL, POLICIES = "checkpoints", "policies"
 def manager(run_dir: str | Path, keep: int | None = None, folder: str = FULL) -> Manager:
     """The run's checkpoints (``folder``: ``FULL`` training states, or ``POLICIES``); ``keep``: how many of the
     newest a save leaves (None: all)."""
-    return Manager(
-        Path(run_dir).absolute() / folder, item_handlers=ocp.StandardCheckpointHandler(),
-        options=ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, enable_async_checkpointing=False),
-    )
+    path = Path(run_dir).absolute() / folder
+    if jax.process_count() == 1:
+        return Manager(path, item_handlers=ocp.StandardCheckpointHandler(), options=ocp.CheckpointManagerOptions(
+            max_to_keep=keep, create=True, enable_async_checkpointing=False))
+    # Several processes (runtime.distributed): each process's manager works alone (process 0 writes, every process
+    # reads), so Orbax must not wait for the others at its barriers.
+    pid = jax.process_index()
+    path.mkdir(parents=True, exist_ok=True)
+    return Manager(path, item_handlers=ocp.StandardCheckpointHandler(), options=ocp.CheckpointManagerOptions(
+        max_to_keep=keep, create=False, enable_async_checkpointing=False,
+        multiprocessing_options=ocp.options.MultiprocessingOptions(
+            primary_host=pid, active_processes={pid}, barrier_sync_key_prefix=f"cogail-{folder}-{pid}")))
 
 
 def policy_manager(run_dir: str | Path) -> Manager | None:
@@ -81,7 +89,7 @@ def layout(tree=None) -> dict:
     for x in jax.tree.leaves(tree) if tree is not None else ():
         if isinstance(x, jax.Array) and not _empty(x):
             devs |= set(x.sharding.device_set)
-    devs = sorted(devs, key=lambda d: d.id) or jax.devices()[:1]
+    devs = sorted(devs, key=lambda d: d.id) or jax.local_devices()[:1]
     return {"platform": devs[0].platform, "device_kind": devs[0].device_kind, "device_count": len(devs)}
 
 
@@ -134,6 +142,8 @@ def save(mgr: ocp.CheckpointManager, step: int, state, **metadata) -> None:
     metadata records the device layout it was saved on (and ``metadata``)."""
     if step in mgr.all_steps():
         return
+    if jax.process_count() > 1:  # Orbax writes no process-local device arrays in a multi-process run: host copies
+        state = jax.device_get(state)
     mgr.save(int(step), args=ocp.args.StandardSave(_fill_empty(state)),
              custom_metadata={"layout": layout(state), **metadata})
     mgr.wait_until_finished()
@@ -272,7 +282,7 @@ def _short(e: BaseException) -> str:
 def _restore(mgr, step: int, abstract_state):
     disk_abstract = _abstract_for_disk(abstract_state)
     _check_fits(mgr, step, disk_abstract)
-    dev = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+    dev = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
     # Target shardings on this process's first device: Orbax then never uses the shardings stored at save time.
     target = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=dev), disk_abstract)
     try:
@@ -337,6 +347,9 @@ def restore_latest_valid(mgr: ocp.CheckpointManager, abstract_state, log=print):
         try:
             return step, restore(mgr, step, abstract_state)
         except CheckpointCorrupt as e:
+            if jax.process_index() != 0:  # process 0 moves it aside (runtime.distributed); the others go on
+                log(f"warning: {e}; trying the previous one")
+                continue
             dst = quarantine(mgr, step)
             log(f"warning: {e}; moved it to {dst} and trying the previous one")
     return None, None

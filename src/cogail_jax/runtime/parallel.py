@@ -1,4 +1,5 @@
-"""The seed axis over several devices: the jitted chunk of train steps, dispatched per the state's sharding."""
+"""The seed axis, and each seed's env shards, over several devices: the jitted chunk of train steps, dispatched
+per the state's sharding."""
 from __future__ import annotations
 
 import jax
@@ -18,12 +19,18 @@ class SeedChunk:
       a thread pool; its per-device outputs are put back together as the sharded state. On 2 x H200 XLA's GPU
       compiler crashes (segmentation fault inside ``backend_compile_and_load``) on the 2-device ``shard_map``
       program of the MJX tasks, while their single-device program compiles.
+
+    When the state's mesh also has an ``"envs"`` axis (a run's env shards over devices, ``algo.shards``), the chunk is
+    ``env_fn`` under ``shard_map`` over both axes: each device runs its seeds' share of envs, and the updates average
+    their gradients over ``"envs"`` (the only collectives: none inside the physics). ``env_leaves(state)`` tells which
+    of the state's leaves have an env axis (after the seed axis).
     """
 
-    def __init__(self, fn, multi: str = "shard_map", key=None):
+    def __init__(self, fn, multi: str = "shard_map", key=None, env_fn=None, env_leaves=None):
         from .programs import stored
 
         self.fn = fn
+        self.env_fn, self.env_leaves = env_fn, env_leaves
         self.multi = multi
         # one device: the program is kept between runs (programs.stored; ``key``: what ``fn`` closes over)
         self._plain = jax.jit(fn, donate_argnums=(0,)) if key is None else stored(fn, "chunk", key, (0,))
@@ -39,6 +46,10 @@ class SeedChunk:
             return None
         return sh.mesh
 
+    @staticmethod
+    def _env_axis(mesh) -> bool:
+        return mesh is not None and "envs" in mesh.axis_names and mesh.shape["envs"] > 1
+
     def _for(self, state):
         from jax.sharding import PartitionSpec as P
 
@@ -46,8 +57,14 @@ class SeedChunk:
         if mesh is None:
             return self._plain
         if mesh not in self._sharded:
-            f = jax.shard_map(self.fn, mesh=mesh, in_specs=(P("seeds"), P()),
-                              out_specs=(P("seeds"), P(None, "seeds")), check_vma=False)
+            if self._env_axis(mesh):
+                spec = jax.tree.map(lambda f, x: P() if 0 in x.shape else P("seeds", "envs") if f else P("seeds"),
+                                    self.env_leaves(state), state)
+                f = jax.shard_map(self.env_fn, mesh=mesh, in_specs=(spec, P()), out_specs=(spec, P(None, "seeds")),
+                                  check_vma=False)
+            else:
+                f = jax.shard_map(self.fn, mesh=mesh, in_specs=(P("seeds"), P()),
+                                  out_specs=(P("seeds"), P(None, "seeds")), check_vma=False)
             self._sharded[mesh] = jax.jit(f, donate_argnums=(0,))
         return self._sharded[mesh]
 
@@ -86,7 +103,7 @@ class SeedChunk:
 
     def __call__(self, state, expert):
         mesh = self._mesh(state)
-        if mesh is not None and self.multi == "per_device":
+        if mesh is not None and self.multi == "per_device" and not self._env_axis(mesh):
             return self._per_device(mesh, state, expert)
         return self._for(state)(state, expert)
 

@@ -58,8 +58,8 @@ class SeedChunk:
             return self._plain
         if mesh not in self._sharded:
             if self._env_axis(mesh):
-                spec = jax.tree.map(lambda f, x: P() if 0 in x.shape else P("seeds", "envs") if f else P("seeds"),
-                                    self.env_leaves(state), state)
+                # (empty leaves too, though placed replicated: shard_map hands each device its block's shape)
+                spec = jax.tree.map(lambda f, x: P("seeds", "envs") if f else P("seeds"), self.env_leaves(state), state)
                 f = jax.shard_map(self.env_fn, mesh=mesh, in_specs=(spec, P()), out_specs=(spec, P(None, "seeds")),
                                   check_vma=False)
             else:

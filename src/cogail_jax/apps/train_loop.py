@@ -42,6 +42,8 @@ def seed_mesh(devices: str | int | None, num_seeds: int, env_shards: int = 1):
     from jax.sharding import Mesh
 
     avail = jax.devices()
+    if devices is None and distributed.processes() > 1:
+        devices = "all"  # several processes: one mesh over every process's devices
     n = len(avail) if devices in ("all", None) else int(devices)
     if devices is None or n <= 1:
         return None

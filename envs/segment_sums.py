@@ -9,12 +9,6 @@ runs each such scatter as a serial loop over its indices: on HR-Handover's paper
 ``s`` is ``((0 + x[i0]) + x[i1]) + ...`` over its members ``i0 < i1 < ...``), which is deterministic without
 any scatter. :func:`gathered_segment_sums` routes ``jax.ops.segment_sum`` calls with static ids to it while a
 function is traced.
-
-The same context traces MJX without sorts: XLA's SPMD partitioner aborts on a sort inside a ``shard_map`` program
-("Check failed: !IsManualLeaf()" in ``HandleSort``; on the GPU, a segmentation fault in the Shardy pass), which is
-how a run's env shards go over several devices. MJX sorts twice per step for nothing: ``math.axis_angle_to_quat``
-builds a quaternion with ``jnp.insert`` (which sorts its indices) and the tendon code argsorts an empty array on
-models without tendons. :func:`sort_free_axis_angle_to_quat` and :func:`_argsort` compute the same values without.
 """
 from __future__ import annotations
 
@@ -27,29 +21,6 @@ import jax.numpy as jnp
 import numpy as np
 
 _SEGMENT_SUM = jax.ops.segment_sum  # JAX's own, kept for every call this module does not handle
-_ARGSORT = jnp.argsort
-
-
-def sort_free_axis_angle_to_quat(axis: jax.Array, angle: jax.Array) -> jax.Array:
-    """MJX's ``math.axis_angle_to_quat`` (``jnp.insert(axis * sin, 0, cos)``) as a concatenation: the same values."""
-    s, c = jnp.sin(angle * 0.5), jnp.cos(angle * 0.5)
-    return jnp.concatenate([jnp.reshape(c, (1,)), axis * s])
-
-
-def _argsort(a, *args, **kwargs):
-    if jnp.size(a) == 0:  # nothing to sort: no sort in the program
-        return jnp.zeros(jnp.shape(a), jnp.int32)
-    return _ARGSORT(a, *args, **kwargs)
-
-
-def _substitutions() -> list[tuple[object, str, object]]:
-    from mujoco.mjx._src import math as mjx_math
-
-    return [(jax.ops, "segment_sum", _segment_sum), (jnp, "argsort", _argsort),
-            (mjx_math, "axis_angle_to_quat", sort_free_axis_angle_to_quat)]
-
-
-_ORIGINAL: dict[tuple[int, str], object] = {}
 
 
 def static_segment_sum(data: jax.Array, ids: np.ndarray, num_segments: int) -> jax.Array:
@@ -85,22 +56,16 @@ _ACTIVE = 0  # contexts open, over all threads
 @contextlib.contextmanager
 def gathered_segment_sums() -> Iterator[None]:
     """While tracing inside this context, ``jax.ops.segment_sum`` with numpy ids computes by gathers
-    (:func:`static_segment_sum`; any other call goes to JAX's own), and MJX traces without sorts (module docstring).
-    The original functions are put back when the last context open (in any thread: programs may be traced in a
-    background thread) closes."""
+    (:func:`static_segment_sum`); any other call goes to JAX's own. JAX's function is put back when the last
+    context open (in any thread: programs may be traced in a background thread) closes."""
     global _ACTIVE
     with _LOCK:
-        if not _ACTIVE:
-            for mod, name, new in _substitutions():
-                _ORIGINAL[(id(mod), name)] = (mod, getattr(mod, name))
-                setattr(mod, name, new)
         _ACTIVE += 1
+        jax.ops.segment_sum = _segment_sum
     try:
         yield
     finally:
         with _LOCK:
             _ACTIVE -= 1
             if not _ACTIVE:
-                for (_, name), (mod, old) in list(_ORIGINAL.items()):
-                    setattr(mod, name, old)
-                _ORIGINAL.clear()
+                jax.ops.segment_sum = _SEGMENT_SUM

@@ -53,10 +53,8 @@ def seed_mesh(devices: str | int | None, num_seeds: int, env_shards: int = 1):
     s = n // e
     while num_seeds % s:  # the seed axis must split evenly
         s -= 1
-    if e == 1 and s <= 1:
-        return None
     if e == 1:
-        return Mesh(np.asarray(avail[:s]), ("seeds",))
+        return None if s <= 1 else Mesh(np.asarray(avail[:s]), ("seeds",))
     return Mesh(np.asarray(avail[:s * e]).reshape(s, e), ("seeds", "envs"))
 
 

@@ -83,7 +83,7 @@ FILE_WEIGHTS = {
 }
 
 FILE_WEIGHTS["test_coplay.py"] = 280  # three tasks' co-play programs compiled (MJX on the CPU)
-FILE_WEIGHTS["test_multiprocess.py"] = 170  # three runs of two processes (or two devices), one after another
+FILE_WEIGHTS["test_multiprocess.py"] = 260  # five runs of two processes (or two devices), one after another
 FILE_WEIGHTS["test_env_shards.py"] = 100
 
 

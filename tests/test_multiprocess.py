@@ -109,6 +109,23 @@ def test_two_processes_resumed_equal_one_process(runs):
     assert sorted(p.name for p in (d / "two" / "checkpoints").iterdir() if p.name.isdigit()) == ["6"]
 
 
+def test_two_processes_per_device_seeds(tmp_path, demo_files):
+    """The MJX tasks' multi-device mode (``multi_device=per_device``: each device runs the one-device program on its
+    seeds, no collectives) over two processes: each process runs its own device's seed, and the run equals one
+    process with two devices, bit for bit."""
+    (tmp_path / "worker.py").write_text(WORKER)
+    cfg = json.dumps({**CFG, "seeds": [3, 4], "env_shards": 1, "total_steps": 8 * 8 * 2, "multi_device": "per_device",
+                      "demos": str(demo_files[0])})
+    py, port = sys.executable, _port()
+    two = _together([[py, "worker.py", str(i), "2", str(port), "two", "0", cfg] for i in (0, 1)], _env(1), tmp_path)
+    one = _together([[py, "worker.py", "0", "1", "0", "one", "0", cfg]], _env(2), tmp_path)
+    for rc, text in two + one:
+        assert rc == 0, text[-3000:]
+    a, b = _policy(tmp_path / "two", 2), _policy(tmp_path / "one", 2)
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert a[0].shape[0] == 2  # both seeds, gathered from the two processes
+
+
 def test_join_needs_all_three_flags():
     from cogail_jax.algo.config import ConfigError
     from cogail_jax.runtime import distributed

@@ -73,8 +73,8 @@ class SeedChunk:
 
         from jax.sharding import NamedSharding, PartitionSpec as P
 
-        devs = list(mesh.devices.flat)
-        n = len(devs)
+        n = mesh.devices.size
+        devs = [d for d in mesh.devices.flat if d.process_index == jax.process_index()]  # this process's devices
 
         def shard(x, i):  # what device i holds of x
             return next(sh.data for sh in x.addressable_shards if sh.device == devs[i])
@@ -84,7 +84,7 @@ class SeedChunk:
                 return jax.device_put(np.zeros((x.shape[0] // n,) + x.shape[1:], x.dtype), devs[i])
             return shard(x, i)
 
-        def whole(parts, axis, pspec):
+        def whole(parts, axis, pspec):  # (with several processes, the global array of every process's parts)
             shape = list(parts[0].shape)
             shape[axis] *= n
             if parts[0].size == 0:  # placed as trainer.place_on_devices places empty leaves: replicated
@@ -92,10 +92,10 @@ class SeedChunk:
             return jax.make_array_from_single_device_arrays(tuple(shape), NamedSharding(mesh, pspec), list(parts))
 
         args = [(jax.tree.map(lambda x: piece(x, i), state), jax.tree.map(lambda x: shard(x, i), expert))
-                for i in range(n)]
+                for i in range(len(devs))]
         del state
         if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=n)
+            self._pool = ThreadPoolExecutor(max_workers=len(devs))
         outs = list(self._pool.map(lambda a: self._plain(*a), args))  # first call: the n compilations in parallel
         new_state = jax.tree.map(lambda *p: whole(p, 0, P("seeds")), *[o[0] for o in outs])
         metrics = jax.tree.map(lambda *p: whole(p, 1, P(None, "seeds")), *[o[1] for o in outs])

@@ -73,6 +73,17 @@ DEVICE_SCRIPT = textwrap.dedent("""
     leaves = jax.tree.leaves(jax.device_get(st.params))
     np.savez("two_devices.npz", counters=np.stack(counters), episodes=np.stack(episodes),
              **{f"p{i}": np.asarray(x) for i, x in enumerate(leaves)})
+    # a task whose programs over several GPUs XLA cannot compile (multi_device=per_device): refused on a GPU
+    from cogail_jax.apps.runs import RunError
+    backend, jax.default_backend = jax.default_backend, lambda: "gpu"
+    try:
+        train_loop.place_on_devices(s.init(cfg.seeds, s.expert), s.expert, "all", len(cfg.seeds), cfg.env_shards,
+                                    "per_device")
+        out["refused"] = False
+    except RunError as e:
+        out["refused"] = "crash XLA's GPU compiler" in str(e) and "--env-shards" in str(e)
+    finally:
+        jax.default_backend = backend
     print("RESULT " + json.dumps(out))
 """)
 
@@ -165,6 +176,7 @@ def test_two_devices_match_shards_side_by_side(cfgs, here, two_devices):
     # every shard holds the same parameters (and optimizer states, code counter, ...) bit for bit: the averages
     # are gathered and summed in shard order on every device
     assert out["shards_differ"] == [], out["shards_differ"]
+    assert out["refused"], "env shards over several GPUs were not refused for a per_device task"
     side = here[2]
     assert side["compilations"] == 1
     # Tolerance: the two programs are compiled differently (the shard axis vmapped in one program vs shard_map

@@ -48,11 +48,11 @@ DEVICE_SCRIPT = textwrap.dedent("""
     st, ex = train_loop.place_on_devices(s.init(cfg.seeds, s.expert), s.expert, "all", len(cfg.seeds),
                                          cfg.env_shards)
     sig = lambda t: [(x.sharding, x.shape, x.dtype, x.weak_type) for x in jax.tree.leaves(t)]
-    spec = lambda x: [None if a is None else str(a) for a in x.sharding.spec]
+    pspec = lambda x: [None if a is None else str(a) for a in x.sharding.spec]
     before = sig(st)
     out = {"mesh": dict(st.env_state.obs.sharding.mesh.shape),
-           "env_specs": {k: spec(getattr(st, k)) for k in ("ret_acc", "z", "hist", "prev_ah")}
-                        | {"env_state.obs": spec(st.env_state.obs)},
+           "env_specs": {k: pspec(getattr(st, k)) for k in ("ret_acc", "z", "hist", "prev_ah")}
+                        | {"env_state.obs": pspec(st.env_state.obs)},
            "env_devices": len(st.env_state.obs.sharding.device_set),
            "params_replicated": all(x.sharding.is_fully_replicated for x in jax.tree.leaves(st.params)),
            "params_devices": len(jax.tree.leaves(st.params)[0].sharding.device_set)}
@@ -167,8 +167,8 @@ def test_two_devices_match_shards_side_by_side(cfgs, here, two_devices):
     out, arrs = two_devices.result()
     # placement: the env leaves split over both devices along "envs", everything else (params) replicated
     assert out["mesh"] == {"seeds": 1, "envs": 2}, out
-    for name, spec in out["env_specs"].items():
-        assert "envs" in spec, (name, spec)
+    for name, pspec in out["env_specs"].items():
+        assert "envs" in pspec, (name, pspec)
     assert out["env_devices"] == 2 and out["params_devices"] == 2 and out["params_replicated"], out
     # the output state is placed as the input was, and the chunk compiled once over both calls (outputs placed
     # otherwise than the inputs made the second call compile the whole chunk again)

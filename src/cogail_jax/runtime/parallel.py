@@ -59,8 +59,8 @@ class SeedChunk:
         if mesh not in self._sharded:
             if self._env_axis(mesh):
                 # (empty leaves too, though placed replicated: shard_map hands each device its block's shape)
-                spec = jax.tree.map(lambda f, x: P("seeds", "envs") if f else P("seeds"), self.env_leaves(state), state)
-                f = jax.shard_map(self.env_fn, mesh=mesh, in_specs=(spec, P()), out_specs=(spec, P(None, "seeds")),
+                specs = jax.tree.map(lambda f, x: P("seeds", "envs") if f else P("seeds"), self.env_leaves(state), state)
+                f = jax.shard_map(self.env_fn, mesh=mesh, in_specs=(specs, P()), out_specs=(specs, P(None, "seeds")),
                                   check_vma=False)
             else:
                 f = jax.shard_map(self.fn, mesh=mesh, in_specs=(P("seeds"), P()),

@@ -45,7 +45,7 @@ def train_throughput(cfg, env, expert, norm, calls: int = 3, devices=None) -> di
 
     init, chunk, _ = train.make_train_fns(cfg, env, norm)
     state = init(cfg.seeds, expert)
-    state, expert = place_on_devices(state, expert, devices, len(cfg.seeds), cfg.env_shards, cfg.multi_device_mode)
+    state, expert = place_on_devices(state, expert, devices, len(cfg.seeds), cfg.env_shards)
     t0 = time.time()
     state, m = chunk(state, expert)
     jax.block_until_ready(m)

@@ -58,12 +58,10 @@ def seed_mesh(devices: str | int | None, num_seeds: int, env_shards: int = 1):
     return Mesh(np.asarray(avail[:s * e]).reshape(s, e), ("seeds", "envs"))
 
 
-def place_on_devices(state, expert, devices, num_seeds, env_shards: int = 1, multi: str = "shard_map"):
+def place_on_devices(state, expert, devices, num_seeds, env_shards: int = 1):
     """Shard the leading seed axis of the state over the mesh, and the env axis of its env leaves
     (``train.env_leaves``) over the mesh's "envs" axis; replicate the demonstrations. One program: jit follows the
-    input shardings, so every device runs its seeds' (and env shard's) rollouts and updates. ``multi``: the run's
-    ``multi_device_mode``; "per_device" (a task whose programs over several GPUs XLA's GPU compiler cannot compile)
-    refuses env shards over several GPUs."""
+    input shardings, so every device runs its seeds' (and env shard's) rollouts and updates."""
     mesh = seed_mesh(devices, num_seeds, env_shards)
     if mesh is None:
         if distributed.processes() > 1:
@@ -76,10 +74,6 @@ def place_on_devices(state, expert, devices, num_seeds, env_shards: int = 1, mul
     from ..algo.train import env_leaves
 
     envs = "envs" in mesh.axis_names
-    if envs and multi == "per_device" and jax.default_backend() == "gpu":
-        raise RunError(f"this task's programs over several GPUs crash XLA's GPU compiler (its settings say "
-                       f"multi_device=per_device), so its {env_shards} env shards cannot go one per GPU: run them on "
-                       f"one GPU (leave out --devices) or spread the seeds instead (--devices all, no --env-shards)")
     seeds = "seeds" if mesh.shape["seeds"] > 1 else None  # as jit writes its outputs' specs: no axis of size 1
     # Empty leaves (MJX's unused act / mocap / userdata fields, shape (seeds, envs, 0)) leave the sharded program
     # replicated: placing them so from the start keeps every call's input shardings equal to the previous call's
@@ -177,8 +171,7 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
             for t in compiling:
                 t.join()
             parts.update(bc_run=t1 - t0, compile_wait=time.perf_counter() - t1)
-    state, s.expert = place_on_devices(state, s.expert, devices, len(cfg.seeds), cfg.env_shards,
-                                       cfg.multi_device_mode)
+    state, s.expert = place_on_devices(state, s.expert, devices, len(cfg.seeds), cfg.env_shards)
     here = ckpt.layout(state)
     if fresh:  # (no policy: evaluation starts at the first checkpoint)
         first = _for_checkpoint(s, state)

@@ -3,6 +3,7 @@ per the state's sharding."""
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 
@@ -23,10 +24,14 @@ class SeedChunk:
     When the state's mesh also has an ``"envs"`` axis (a run's env shards over devices, ``algo.shards``), the chunk is
     ``env_fn`` under ``shard_map`` over both axes: each device runs its seeds' share of envs, and the updates average
     their gradients over ``"envs"`` (the only collectives: none inside the physics). ``env_leaves(state)`` tells which
-    of the state's leaves have an env axis (after the seed axis).
+    of the state's leaves have an env axis (after the seed axis). With ``multi="per_device"`` (the physics cannot
+    be compiled into a program over several GPUs) the update is split instead (``split = (collect, learn,
+    updates)``, from ``train.split_step``): each device steps its envs in its own one-device program (``collect``,
+    given the device's shard index), the batches are put together as arrays over the mesh, and ``learn`` runs
+    under ``shard_map`` with the gradient averages; the host repeats that ``updates`` times per call.
     """
 
-    def __init__(self, fn, multi: str = "shard_map", key=None, env_fn=None, env_leaves=None):
+    def __init__(self, fn, multi: str = "shard_map", key=None, env_fn=None, env_leaves=None, split=None):
         from .programs import stored
 
         self.fn = fn
@@ -36,6 +41,9 @@ class SeedChunk:
         self._plain = jax.jit(fn, donate_argnums=(0,)) if key is None else stored(fn, "chunk", key, (0,))
         self._sharded = {}
         self._pool = None
+        self.split = split
+        self._collect = None if split is None else jax.jit(split[0], donate_argnums=(0,))
+        self._learn = {}
 
     @staticmethod
     def _mesh(state):
@@ -101,17 +109,69 @@ class SeedChunk:
         metrics = jax.tree.map(lambda *p: whole(p, 1, P(None, "seeds")), *[o[1] for o in outs])
         return new_state, metrics
 
+    def _split(self, mesh, state, expert):
+        from concurrent.futures import ThreadPoolExecutor
+
+        from jax.sharding import NamedSharding, PartitionSpec as P
+
+        collect, (_, learn_fn, updates) = self._collect, self.split
+        axis = "seeds" if mesh.shape["seeds"] > 1 else None  # as place_on_devices: placements kept call to call
+        env, seeds = P(axis, "envs"), P(axis) if axis else P()
+        specs = jax.tree.map(lambda f, _: env if f else seeds, self.env_leaves(state), state)
+        if mesh not in self._learn:
+            f = jax.shard_map(learn_fn, mesh=mesh, in_specs=(specs, env, P()), out_specs=(specs, seeds),
+                              check_vma=False)
+            self._learn[mesh] = jax.jit(f, donate_argnums=(0, 1))
+        learn = self._learn[mesh]
+        devs = [d for d in mesh.devices.flat if d.process_index == jax.process_index()]  # this process's devices
+        at = {d: jax.device_put(np.int32(np.argwhere(mesh.devices == d)[0][1]), d) for d in devs}
+        size = {"seeds": mesh.shape["seeds"], "envs": mesh.shape["envs"]}
+
+        def piece(x, spec, d):  # what device d holds of x (of an empty leaf, placed replicated: its block's shape)
+            if x.size == 0:
+                shape = [n // size.get(a, 1) for n, a in zip(x.shape, tuple(spec) + (None,) * x.ndim)]
+                return jax.device_put(np.zeros(shape, x.dtype), d)
+            return next(sh.data for sh in x.addressable_shards if sh.device == d)
+
+        def whole(spec, *parts):  # the array over the mesh of every device's part (every process's, with several)
+            shape = [n * size.get(a, 1) for n, a in zip(parts[0].shape, tuple(spec) + (None,) * parts[0].ndim)]
+            if parts[0].size == 0:  # placed as trainer.place_on_devices places empty leaves: replicated
+                return jax.device_put(np.zeros(shape, parts[0].dtype), NamedSharding(mesh, P()))
+            return jax.make_array_from_single_device_arrays(tuple(shape), NamedSharding(mesh, spec), list(parts))
+
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=len(devs))
+        metrics = []
+        for _ in range(updates):
+            args = [(jax.tree.map(lambda sp, x: piece(x, sp, d), specs, state), at[d]) for d in devs]
+            del state
+            outs = list(self._pool.map(lambda a: collect(*a), args))  # first call: the compilations in parallel
+            del args
+            state = jax.tree.map(whole, specs, *[o[0] for o in outs])
+            batch = jax.tree.map(lambda *p: whole(env, *p), *[o[1] for o in outs])
+            del outs
+            state, m = learn(state, batch, expert)
+            metrics.append(m)
+        return state, jax.tree.map(lambda *m: jnp.stack(m), *metrics)
+
     def __call__(self, state, expert):
         mesh = self._mesh(state)
-        if mesh is not None and self.multi == "per_device" and not self._env_axis(mesh):
+        if mesh is not None and self.multi == "per_device":
+            if self._env_axis(mesh):
+                return self._split(mesh, state, expert)
             return self._per_device(mesh, state, expert)
         return self._for(state)(state, expert)
 
     def lower(self, state, expert):
+        mesh = self._mesh(state)
+        if self.multi == "per_device" and self._env_axis(mesh):
+            raise NotImplementedError("the split update's programs compile on its first call")
         return self._for(state).lower(state, expert)
 
     def _cache_size(self) -> int:
-        return self._plain._cache_size() + sum(f._cache_size() for f in self._sharded.values())
+        split = 0 if self._collect is None else self._collect._cache_size() + sum(
+            f._cache_size() for f in self._learn.values())
+        return self._plain._cache_size() + sum(f._cache_size() for f in self._sharded.values()) + split
 
 
 __all__ = ["SeedChunk"]

@@ -431,16 +431,18 @@ def train_step(ctx: Context, state: TrainState, expert):
 
 def split_step(ctx: Context):
     """``train_step`` as two programs, for env shards whose physics XLA cannot compile into a program over several
-    devices (``parallel.SeedChunk``'s split mode): ``collect_one(state, at)``, one shard's rollout alone on its
-    device, whose batch has the env axis first on every leaf; and ``learn_one(state, batch, expert)`` with the
-    shards' axis bound. Both vmapped over seeds."""
+    devices (``parallel.SeedChunk``'s split mode): ``collect_one(state, at) -> (env_state, rest, batch)``, one shard's
+    rollout alone on its device, with the env state apart from the rest of the state (the learning does not read
+    it) and the env axis first on every leaf of the batch; ``learn_one(rest, batch, expert) -> (rest, metrics)``
+    with the shards' axis bound; ``join(rest, env_state) -> state``. Vmapped over seeds."""
 
     def collect_one(state, at):
         counter0 = state.code_counter
         state, batch = collect(ctx, state, at)
         batch = {**batch, "traj": jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), batch["traj"]),
                  "k_inner": batch["k_inner"][None], "k_ppo": batch["k_ppo"][None], "counter": state.code_counter[None]}
-        return state.replace(code_counter=counter0), batch  # (every shard's non-env leaves the same)
+        # (the counter as it was: every shard's non-env leaves the same)
+        return state.env_state, state.replace(env_state=None, code_counter=counter0), batch
 
     def learn_one(state, batch, expert):
         state = state.replace(code_counter=settle_counter(ctx.cfg, state.code_counter, batch["counter"][0]))
@@ -448,7 +450,10 @@ def split_step(ctx: Context):
                  "last_value": batch["last_value"], "k_inner": batch["k_inner"][0], "k_ppo": batch["k_ppo"][0]}
         return learn(ctx, state, batch, expert)
 
-    return jax.vmap(collect_one, in_axes=(0, None)), jax.vmap(learn_one, in_axes=(0, 0, None))
+    def join(state, env_state):
+        return state.replace(env_state=env_state)
+
+    return jax.vmap(collect_one, in_axes=(0, None)), jax.vmap(learn_one, in_axes=(0, 0, None)), join
 
 
 def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
@@ -493,7 +498,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
     init.abstract = abstract
     one = chunk if shards.count(cfg) == 1 else chunk_here
     return init, SeedChunk(one, cfg.multi_device_mode, key=cfg, env_fn=chunk, env_leaves=env_leaves,
-                           split=(*split_step(ctx), cfg.updates_per_call)), ctx.modules
+                           split=(split_step(ctx), cfg.updates_per_call)), ctx.modules
 
 
 ENV_FIELDS = ("ret_acc", "env_state", "z", "hist", "prev_ah")  # TrainState's fields with an env axis

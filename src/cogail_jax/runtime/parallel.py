@@ -25,10 +25,11 @@ class SeedChunk:
     ``env_fn`` under ``shard_map`` over both axes: each device runs its seeds' share of envs, and the updates average
     their gradients over ``"envs"`` (the only collectives: none inside the physics). ``env_leaves(state)`` tells which
     of the state's leaves have an env axis (after the seed axis). With ``multi="per_device"`` (the physics cannot
-    be compiled into a program over several GPUs) the update is split instead (``split = (collect, learn,
+    be compiled into a program over several GPUs) the update is split instead (``split = ((collect, learn, join),
     updates)``, from ``train.split_step``): each device steps its envs in its own one-device program (``collect``,
     given the device's shard index), the batches are put together as arrays over the mesh, and ``learn`` runs
-    under ``shard_map`` with the gradient averages; the host repeats that ``updates`` times per call.
+    under ``shard_map`` with the gradient averages on the state less its env state (which holds MJX's empty
+    fields; ``join`` puts it back); the host repeats that ``updates`` times per call.
     """
 
     def __init__(self, fn, multi: str = "shard_map", key=None, env_fn=None, env_leaves=None, split=None):
@@ -42,7 +43,7 @@ class SeedChunk:
         self._sharded = {}
         self._pool = None
         self.split = split
-        self._collect = None if split is None else jax.jit(split[0], donate_argnums=(0,))
+        self._collect = None if split is None else jax.jit(split[0][0], donate_argnums=(0,))
         self._learn = {}
 
     @staticmethod
@@ -114,12 +115,14 @@ class SeedChunk:
 
         from jax.sharding import NamedSharding, PartitionSpec as P
 
-        collect, (_, learn_fn, updates) = self._collect, self.split
+        collect, ((_, learn_fn, join), updates) = self._collect, self.split
         axis = "seeds" if mesh.shape["seeds"] > 1 else None  # as place_on_devices: placements kept call to call
         env, seeds = P(axis, "envs"), P(axis) if axis else P()
         specs = jax.tree.map(lambda f, _: env if f else seeds, self.env_leaves(state), state)
+        rest_specs = jax.tree.map(lambda f, _: env if f else seeds, self.env_leaves(join(state, None)),
+                                  join(state, None))
         if mesh not in self._learn:
-            f = jax.shard_map(learn_fn, mesh=mesh, in_specs=(specs, env, P()), out_specs=(specs, seeds),
+            f = jax.shard_map(learn_fn, mesh=mesh, in_specs=(rest_specs, env, P()), out_specs=(rest_specs, seeds),
                               check_vma=False)
             self._learn[mesh] = jax.jit(f, donate_argnums=(0, 1))
         learn = self._learn[mesh]
@@ -147,10 +150,12 @@ class SeedChunk:
             del state
             outs = list(self._pool.map(lambda a: collect(*a), args))  # first call: the compilations in parallel
             del args
-            state = jax.tree.map(whole, specs, *[o[0] for o in outs])
-            batch = jax.tree.map(lambda *p: whole(env, *p), *[o[1] for o in outs])
+            env_state = jax.tree.map(lambda *p: whole(env, *p), *[o[0] for o in outs])
+            rest = jax.tree.map(whole, rest_specs, *[o[1] for o in outs])
+            batch = jax.tree.map(lambda *p: whole(env, *p), *[o[2] for o in outs])
             del outs
-            state, m = learn(state, batch, expert)
+            rest, m = learn(rest, batch, expert)
+            state = join(rest, env_state)
             metrics.append(m)
         return state, jax.tree.map(lambda *m: jnp.stack(m), *metrics)
 

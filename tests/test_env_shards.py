@@ -73,25 +73,6 @@ DEVICE_SCRIPT = textwrap.dedent("""
     leaves = jax.tree.leaves(jax.device_get(st.params))
     np.savez("two_devices.npz", counters=np.stack(counters), episodes=np.stack(episodes),
              **{f"p{i}": np.asarray(x) for i, x in enumerate(leaves)})
-    # the split update (multi_device=per_device: a task whose physics XLA's GPU compiler cannot compile into a
-    # program over several GPUs): each device's rollout in its own one-device program, the learning under shard_map
-    cfg = cfg.replace(multi_device="per_device")
-    s = runs.build(cfg, need_heldout=False)
-    st, ex = train_loop.place_on_devices(s.init(cfg.seeds, s.expert), s.expert, "all", len(cfg.seeds),
-                                         cfg.env_shards)
-    before, split_counters = sig(st), []
-    for _ in range(int(sys.argv[2])):
-        st, m = s.chunk(st, ex)
-        split_counters.append(np.asarray(st.code_counter))
-    out["split"] = {"placement_kept": sig(st) == before, "compilations": s.chunk._cache_size(),
-                    "placement_diff": [str((a[0].spec, b[0].spec, a[1:], b[1:])) for a, b in zip(before, sig(st)) if a != b][:4],
-                    "metrics_shape": list(m["disc_loss"].shape),
-                    "shards_differ": [jax.tree_util.keystr(k) for f, (k, x) in
-                                      zip(jax.tree.leaves(env_leaves(st)), jax.tree_util.tree_leaves_with_path(st))
-                                      if not f and x.size and not all(np.array_equal(np.asarray(a.data),
-                                      np.asarray(x.addressable_shards[0].data)) for a in x.addressable_shards)]}
-    np.savez("split.npz", counters=np.stack(split_counters),
-             **{f"p{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(jax.device_get(st.params)))})
     print("RESULT " + json.dumps(out))
 """)
 
@@ -108,8 +89,7 @@ class DeviceRun:
             out, err = self.proc.communicate(timeout=600)
             line = [x for x in out.splitlines() if x.startswith("RESULT ")]
             assert self.proc.returncode == 0 and line, err[-3000:]
-            self._result = (json.loads(line[0][len("RESULT "):]), dict(np.load(self.tmp / "two_devices.npz")),
-                            dict(np.load(self.tmp / "split.npz")))
+            self._result = json.loads(line[0][len("RESULT "):]), dict(np.load(self.tmp / "two_devices.npz"))
         return self._result
 
 
@@ -173,7 +153,7 @@ def _collectives(names) -> set[str]:
 def test_two_devices_match_shards_side_by_side(cfgs, here, two_devices):
     """2 shards side by side on one device == 1 shard per device on 2 devices: the same arithmetic (per-shard keys,
     gradients gathered and averaged in shard order), compiled as two different programs."""
-    out, arrs, _ = two_devices.result()
+    out, arrs = two_devices.result()
     # placement: the env leaves split over both devices along "envs", everything else (params) replicated
     assert out["mesh"] == {"seeds": 1, "envs": 2}, out
     for name, pspec in out["env_specs"].items():
@@ -200,23 +180,6 @@ def test_two_devices_match_shards_side_by_side(cfgs, here, two_devices):
     # the episodes (and so the code counter) agree exactly: the rollouts ended the same episodes
     np.testing.assert_array_equal(arrs["episodes"], np.stack([m["episodes"] for m in side["metrics"]]))
     np.testing.assert_array_equal(arrs["counters"], side["counters"])
-
-
-def test_split_update_matches_one_program(cfgs, here, two_devices):
-    """The split update (``multi_device="per_device"``: each device's rollout in a one-device program given its
-    shard index, the learning under ``shard_map``) trains as the one program over both devices: the same keys,
-    episodes and code counter; parameters within the layouts' tolerance (other program boundaries, so other
-    fusions: the same reasoning and bounds as above). Its programs: one rollout per device and one learning
-    program, each compiled once over both calls; the state comes back placed as it went in."""
-    out, _, arrs = two_devices.result()
-    split = out["split"]
-    assert split["placement_kept"] and split["compilations"] == 3, split
-    assert split["shards_differ"] == [] and split["metrics_shape"] == [cfgs[1].updates_per_call, len(cfgs[1].seeds)], split
-    np.testing.assert_array_equal(arrs["counters"], here[2]["counters"][1:])
-    mine = _leaves(here[2]["state"].params)
-    assert len(mine) == sum(k.startswith("p") for k in arrs)
-    for i, a in enumerate(mine):
-        np.testing.assert_allclose(arrs[f"p{i}"], a, rtol=2e-5, atol=2e-6)
 
 
 # ------------------------------------------------------------------------------------------------ shards average

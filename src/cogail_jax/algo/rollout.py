@@ -49,12 +49,6 @@ def new_codes(cfg: TrainConfig, counter, done, key, stride: int = 1):
     return z, counter + (count if stride == 1 else stride * count)
 
 
-def settle_counter(cfg: TrainConfig, counter0, counter):
-    """The code counter after a rollout of every shard: ``counter0`` advanced by all shards' new episodes, where
-    ``counter`` is one shard's own counter after its rollout from ``counter0``."""
-    return counter0 + shards.total(cfg, (counter - counter0) // shards.count(cfg))
-
-
 def initial_carry(cfg: TrainConfig, env, key_env, key_z) -> Carry:
     """Fresh episodes in every env, with the first grid cells as their codes."""
     n = cfg.num_envs
@@ -64,7 +58,7 @@ def initial_carry(cfg: TrainConfig, env, key_env, key_z) -> Carry:
                  jnp.zeros((n, env.human_action_size)), counter)
 
 
-def rollout(cfg: TrainConfig, env, actor, critic, params, norm, carry: Carry, key, at=None):
+def rollout(cfg: TrainConfig, env, actor, critic, params, norm, carry: Carry, key):
     """Step every env ``cfg.unroll_length`` times with the co-policy ``actor`` (sampled actions).
 
     Returns ``(carry, traj, last_value)``: ``traj`` holds (T, N) arrays of the step's inputs (obs, z, hist,
@@ -74,13 +68,11 @@ def rollout(cfg: TrainConfig, env, actor, critic, params, norm, carry: Carry, ke
 
     With ``env_shards`` > 1 this is one shard's rollout (its ``carry`` holds its own envs; ``key`` its own): shard i
     of E takes the cycle's cells i, i + E, i + 2E, ... from the counter on, and the returned counter is advanced by
-    every shard's new episodes (``shards.total``), the same on every shard. ``at``: the shard's index in a program
-    of one shard alone (``shards.index``); its returned counter is then this shard's own, which ``settle_counter``
-    turns into the common one where the shards' axis is bound."""
+    every shard's new episodes (``shards.total``), the same on every shard."""
     n, k, ah, e = shards.local_envs(cfg), cfg.history, env.human_action_size, shards.count(cfg)
     counter0 = carry.code_counter
     if e > 1:
-        carry = carry._replace(code_counter=counter0 + shards.index(cfg, at))
+        carry = carry._replace(code_counter=counter0 + shards.index(cfg))
     # One batch of fresh episodes per rollout, not per step: an env whose episode ends takes its fresh state
     # (for MJX tasks a reset costs a forward pass, so resetting every env every step doubled the step's cost).
     # An env that ends twice within one unroll restarts from the same initial state (with a new code).
@@ -114,8 +106,8 @@ def rollout(cfg: TrainConfig, env, actor, critic, params, norm, carry: Carry, ke
         return c, tr
 
     carry, traj = jax.lax.scan(body, carry, jax.random.split(key, cfg.unroll_length), unroll=cfg.scan_unroll)
-    if e > 1 and at is None:
-        carry = carry._replace(code_counter=settle_counter(cfg, counter0, carry.code_counter))
+    if e > 1:
+        carry = carry._replace(code_counter=counter0 + shards.total(cfg, (carry.code_counter - counter0) // e))
     # the critic's value of a timed-out episode's last observation (the auto-reset replaced it in the carry)
     final_obs = normalize(norm, traj.pop("next_obs"))
     traj["final_value"] = jnp.where(traj["truncation"] > 0, critic(params["critic"], final_obs, traj["z"]), 0.0)

@@ -35,17 +35,14 @@ def local_batch(cfg, n: int) -> int:
     return n // cfg.env_shards
 
 
-def index(cfg, at=None):
-    """This shard's index (0 with one shard): ``at`` where given (a program of one shard alone, in which no axis is
-    bound: ``parallel.SeedChunk``'s split mode), else the position along ``AXIS``."""
-    if cfg.env_shards == 1:
-        return 0
-    return jax.lax.axis_index(AXIS) if at is None else at
+def index(cfg):
+    """This shard's index (0 with one shard)."""
+    return 0 if cfg.env_shards == 1 else jax.lax.axis_index(AXIS)
 
 
-def key(cfg, k, at=None):
+def key(cfg, k):
     """``k`` made this shard's own (the shards sample different steps; ``k`` itself with one shard)."""
-    return k if cfg.env_shards == 1 else jax.random.fold_in(k, index(cfg, at))
+    return k if cfg.env_shards == 1 else jax.random.fold_in(k, jax.lax.axis_index(AXIS))
 
 
 def mean(cfg, tree):

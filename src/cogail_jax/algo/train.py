@@ -29,7 +29,7 @@ from .config import TrainConfig
 from .networks import disc_kind, gaussian_log_prob, history_input, make_networks, normalize
 from ..runtime.parallel import SeedChunk
 from ..runtime.programs import stored
-from .rollout import Carry, code_grid, initial_carry, rollout, settle_counter
+from .rollout import Carry, code_grid, initial_carry, rollout
 
 
 class TrainState(struct.PyTreeNode):
@@ -389,28 +389,22 @@ def ppo_update(ctx: Context, state: TrainState, traj, adv, ret, key, expert):
 
 
 # ------------------------------------------------------------------------------------------------ one update
-def collect(ctx: Context, state: TrainState, at=None):
-    """An update's rollout: the state with the envs stepped on, and the batch ``learn`` takes. ``at``: the env
-    shard's index in a program of one shard alone (``shards.index``)."""
+def train_step(ctx: Context, state: TrainState, expert):
+    """One Co-GAIL update: rollout -> aux / discriminator -> rewards, GAE -> PPO."""
     cfg = ctx.cfg
+    if cfg.bc_only:
+        return bc_step(ctx, state, expert)
     rng, k_roll, k_inner, k_ppo = jax.random.split(state.rng, 4)
-    k_roll, k_inner, k_ppo = (shards.key(cfg, k, at) for k in (k_roll, k_inner, k_ppo))  # each env shard its own
+    k_roll, k_inner, k_ppo = (shards.key(cfg, k) for k in (k_roll, k_inner, k_ppo))  # each env shard its own
     carry, traj, last_value = rollout(cfg, ctx.env, ctx.nets.actor, ctx.nets.critic, state.params, state.norm,
-                                      state.carry, k_roll, at)
+                                      state.carry, k_roll)
     state = state.with_carry(carry).replace(rng=rng)
-    return state, {"traj": traj, "last_value": last_value, "k_inner": k_inner, "k_ppo": k_ppo}
-
-
-def learn(ctx: Context, state: TrainState, batch, expert):
-    """An update's learning from ``collect``'s batch: aux / discriminator -> rewards, GAE -> PPO."""
-    cfg = ctx.cfg
-    traj, last_value = batch["traj"], batch["last_value"]
     flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), traj)
-    state, inner_m = inner_updates(ctx, state, flat, expert, batch["k_inner"])
+    state, inner_m = inner_updates(ctx, state, flat, expert, k_inner)
     state, r_norm, r_raw = rewards(ctx, state, traj)
     adv, ret = losses.gae(r_norm, traj["value"], traj["done"], traj["truncation"], traj["final_value"], last_value,
                           cfg.gamma, cfg.gae_lambda, cfg.scan_unroll)
-    state, ppo_m = ppo_update(ctx, state, traj, adv, ret, batch["k_ppo"], expert)
+    state, ppo_m = ppo_update(ctx, state, traj, adv, ret, k_ppo, expert)
     state = state.replace(params=ema_update(cfg, state.params))
     episodes = shards.total(cfg, traj["done"].sum())
     metrics = {**shards.mean(cfg, {**inner_m, **ppo_m, "reward": r_raw.mean()}), "episodes": episodes,
@@ -419,41 +413,6 @@ def learn(ctx: Context, state: TrainState, batch, expert):
                **shards.total(cfg, {"timeouts": traj["truncation"].sum(), "env_failures": traj["env_failed"].sum()}),
                "nonfinite": (~all_finite(state.params)).astype(jnp.float32)}
     return state.replace(update=state.update + 1), metrics
-
-
-def train_step(ctx: Context, state: TrainState, expert):
-    """One Co-GAIL update: rollout -> aux / discriminator -> rewards, GAE -> PPO."""
-    if ctx.cfg.bc_only:
-        return bc_step(ctx, state, expert)
-    state, batch = collect(ctx, state)
-    return learn(ctx, state, batch, expert)
-
-
-def split_step(ctx: Context):
-    """``train_step`` as two programs, for env shards whose physics XLA cannot compile into a program over several
-    devices (``parallel.SeedChunk``'s split mode): ``collect_one(state, at) -> (env_state, rest, batch)``, one shard's
-    rollout alone on its device, with the env state apart from the rest of the state (the learning does not read
-    it) and the env axis first on every leaf of the batch; ``learn_one(rest, batch, expert) -> (rest, metrics)``
-    with the shards' axis bound; ``join(rest, env_state) -> state``. Vmapped over seeds."""
-
-    def collect_one(state, at):
-        counter0 = state.code_counter
-        state, batch = collect(ctx, state, at)
-        batch = {**batch, "traj": jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), batch["traj"]),
-                 "k_inner": batch["k_inner"][None], "k_ppo": batch["k_ppo"][None], "counter": state.code_counter[None]}
-        # (the counter as it was: every shard's non-env leaves the same)
-        return state.env_state, state.replace(env_state=None, code_counter=counter0), batch
-
-    def learn_one(state, batch, expert):
-        state = state.replace(code_counter=settle_counter(ctx.cfg, state.code_counter, batch["counter"][0]))
-        batch = {"traj": jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), batch["traj"]),
-                 "last_value": batch["last_value"], "k_inner": batch["k_inner"][0], "k_ppo": batch["k_ppo"][0]}
-        return learn(ctx, state, batch, expert)
-
-    def join(state, env_state):
-        return state.replace(env_state=env_state)
-
-    return jax.vmap(collect_one, in_axes=(0, None)), jax.vmap(learn_one, in_axes=(0, 0, None)), join
 
 
 def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
@@ -497,8 +456,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
 
     init.abstract = abstract
     one = chunk if shards.count(cfg) == 1 else chunk_here
-    return init, SeedChunk(one, cfg.multi_device_mode, key=cfg, env_fn=chunk, env_leaves=env_leaves,
-                           split=(split_step(ctx), cfg.updates_per_call)), ctx.modules
+    return init, SeedChunk(one, cfg.multi_device_mode, key=cfg, env_fn=chunk, env_leaves=env_leaves), ctx.modules
 
 
 ENV_FIELDS = ("ret_acc", "env_state", "z", "hist", "prev_ah")  # TrainState's fields with an env axis

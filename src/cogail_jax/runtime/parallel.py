@@ -17,22 +17,17 @@ class SeedChunk:
       solver loops (whose stopping test reduces over the whole batch) put an all-reduce over the devices into
       every solver iteration, and two H200s ran handover at 0.25x the speed of one.
     * ``"per_device"``: the single-device program, compiled once per device and dispatched to all devices from
-      a thread pool; its per-device outputs are put back together as the sharded state. On 2 x H200 XLA's GPU
-      compiler crashes (segmentation fault inside ``backend_compile_and_load``) on the 2-device ``shard_map``
-      program of the MJX tasks, while their single-device program compiles.
+      a thread pool; its per-device outputs are put back together as the sharded state (the MJX tasks' default,
+      from when their ``shard_map`` program crashed XLA's GPU compiler: that came from MJX's zero-size state
+      fields, which now stay outside every program over several devices, ``_strip``).
 
     When the state's mesh also has an ``"envs"`` axis (a run's env shards over devices, ``algo.shards``), the chunk is
     ``env_fn`` under ``shard_map`` over both axes: each device runs its seeds' share of envs, and the updates average
     their gradients over ``"envs"`` (the only collectives: none inside the physics). ``env_leaves(state)`` tells which
-    of the state's leaves have an env axis (after the seed axis). With ``multi="per_device"`` (the physics cannot
-    be compiled into a program over several GPUs) the update is split instead (``split = ((collect, learn, join),
-    updates)``, from ``train.split_step``): each device steps its envs in its own one-device program (``collect``,
-    given the device's shard index), the batches are put together as arrays over the mesh, and ``learn`` runs
-    under ``shard_map`` with the gradient averages on the state less its env state (which holds MJX's empty
-    fields; ``join`` puts it back); the host repeats that ``updates`` times per call.
+    of the state's leaves have an env axis (after the seed axis).
     """
 
-    def __init__(self, fn, multi: str = "shard_map", key=None, env_fn=None, env_leaves=None, split=None):
+    def __init__(self, fn, multi: str = "shard_map", key=None, env_fn=None, env_leaves=None):
         from .programs import stored
 
         self.fn = fn
@@ -42,9 +37,6 @@ class SeedChunk:
         self._plain = jax.jit(fn, donate_argnums=(0,)) if key is None else stored(fn, "chunk", key, (0,))
         self._sharded = {}
         self._pool = None
-        self.split = split
-        self._collect = None if split is None else jax.jit(split[0][0], donate_argnums=(0,))
-        self._learn = {}
 
     @staticmethod
     def _mesh(state):
@@ -60,21 +52,32 @@ class SeedChunk:
         return mesh is not None and "envs" in mesh.axis_names and mesh.shape["envs"] > 1
 
     def _for(self, state):
+        """The jitted program for ``state``'s layout; on a mesh it takes and returns the state less its empty
+        leaves (``_strip``)."""
         from jax.sharding import PartitionSpec as P
 
         mesh = self._mesh(state)
         if mesh is None:
             return self._plain
         if mesh not in self._sharded:
-            if self._env_axis(mesh):
-                # (empty leaves too, though placed replicated: shard_map hands each device its block's shape)
-                specs = jax.tree.map(lambda f, x: P("seeds", "envs") if f else P("seeds"), self.env_leaves(state), state)
-                f = jax.shard_map(self.env_fn, mesh=mesh, in_specs=(specs, P()), out_specs=(specs, P(None, "seeds")),
-                                  check_vma=False)
-            else:
-                f = jax.shard_map(self.fn, mesh=mesh, in_specs=(P("seeds"), P()),
-                                  out_specs=(P("seeds"), P(None, "seeds")), check_vma=False)
-            self._sharded[mesh] = jax.jit(f, donate_argnums=(0,))
+            env = self._env_axis(mesh)
+            fn = self.env_fn if env else self.fn
+            flags = self.env_leaves(state) if env else jax.tree.map(lambda _: False, state)
+            empty = _empty(state)
+            blocks = {"seeds": mesh.shape["seeds"], "envs": mesh.shape["envs"] if env else 1}
+            # an empty leaf's block on one device: its seeds' share (and env shard's) of a zero-size array
+            local = jax.tree.map(lambda f, x: jax.ShapeDtypeStruct((x.shape[0] // blocks["seeds"],) + (
+                (x.shape[1] // blocks["envs"],) + x.shape[2:] if f else x.shape[1:]), x.dtype), flags, state)
+            specs = _strip(jax.tree.map(lambda f, _: P("seeds", "envs") if f else P("seeds"), flags, state), empty)
+
+            def body(st, expert):
+                st = jax.tree.map(lambda e, block, x: jnp.zeros(block.shape, block.dtype) if e else x, empty, local, st)
+                st, metrics = fn(st, expert)
+                return _strip(st, empty), metrics
+
+            f = jax.shard_map(body, mesh=mesh, in_specs=(specs, P()), out_specs=(specs, P(None, "seeds")),
+                              check_vma=False)
+            self._sharded[mesh] = (jax.jit(f, donate_argnums=(0,)), empty)
         return self._sharded[mesh]
 
     def _per_device(self, mesh, state, expert):
@@ -110,73 +113,35 @@ class SeedChunk:
         metrics = jax.tree.map(lambda *p: whole(p, 1, P(None, "seeds")), *[o[1] for o in outs])
         return new_state, metrics
 
-    def _split(self, mesh, state, expert):
-        from concurrent.futures import ThreadPoolExecutor
-
-        from jax.sharding import NamedSharding, PartitionSpec as P
-
-        collect, ((_, learn_fn, join), updates) = self._collect, self.split
-        axis = "seeds" if mesh.shape["seeds"] > 1 else None  # as place_on_devices: placements kept call to call
-        env, seeds = P(axis, "envs"), P(axis) if axis else P()
-        specs = jax.tree.map(lambda f, _: env if f else seeds, self.env_leaves(state), state)
-        rest_specs = jax.tree.map(lambda f, _: env if f else seeds, self.env_leaves(join(state, None)),
-                                  join(state, None))
-        if mesh not in self._learn:
-            f = jax.shard_map(learn_fn, mesh=mesh, in_specs=(rest_specs, env, P()), out_specs=(rest_specs, seeds),
-                              check_vma=False)
-            self._learn[mesh] = jax.jit(f, donate_argnums=(0, 1))
-        learn = self._learn[mesh]
-        devs = [d for d in mesh.devices.flat if d.process_index == jax.process_index()]  # this process's devices
-        at = {d: jax.device_put(np.int32(np.argwhere(mesh.devices == d)[0][1]), d) for d in devs}
-        size = {"seeds": mesh.shape["seeds"], "envs": mesh.shape["envs"]}
-
-        def piece(x, spec, d):  # what device d holds of x (of an empty leaf, placed replicated: its block's shape)
-            if x.size == 0:
-                shape = [n // size.get(a, 1) for n, a in zip(x.shape, tuple(spec) + (None,) * x.ndim)]
-                return jax.device_put(np.zeros(shape, x.dtype), d)
-            return next(sh.data for sh in x.addressable_shards if sh.device == d)
-
-        def whole(spec, *parts):  # the array over the mesh of every device's part (every process's, with several)
-            shape = [n * size.get(a, 1) for n, a in zip(parts[0].shape, tuple(spec) + (None,) * parts[0].ndim)]
-            if parts[0].size == 0:  # placed as trainer.place_on_devices places empty leaves: replicated
-                return jax.device_put(np.zeros(shape, parts[0].dtype), NamedSharding(mesh, P()))
-            return jax.make_array_from_single_device_arrays(tuple(shape), NamedSharding(mesh, spec), list(parts))
-
-        if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=len(devs))
-        metrics = []
-        for _ in range(updates):
-            args = [(jax.tree.map(lambda sp, x: piece(x, sp, d), specs, state), at[d]) for d in devs]
-            del state
-            outs = list(self._pool.map(lambda a: collect(*a), args))  # first call: the compilations in parallel
-            del args
-            env_state = jax.tree.map(lambda *p: whole(env, *p), *[o[0] for o in outs])
-            rest = jax.tree.map(whole, rest_specs, *[o[1] for o in outs])
-            batch = jax.tree.map(lambda *p: whole(env, *p), *[o[2] for o in outs])
-            del outs
-            rest, m = learn(rest, batch, expert)
-            state = join(rest, env_state)
-            metrics.append(m)
-        return state, jax.tree.map(lambda *m: jnp.stack(m), *metrics)
-
     def __call__(self, state, expert):
         mesh = self._mesh(state)
-        if mesh is not None and self.multi == "per_device":
-            if self._env_axis(mesh):
-                return self._split(mesh, state, expert)
+        if mesh is not None and self.multi == "per_device" and not self._env_axis(mesh):
             return self._per_device(mesh, state, expert)
-        return self._for(state)(state, expert)
+        f = self._for(state)
+        if f is self._plain:
+            return f(state, expert)
+        f, empty = f
+        out, metrics = f(_strip(state, empty), expert)
+        return jax.tree.map(lambda e, x, old: old if e else x, empty, out, state, is_leaf=lambda x: x is None), metrics
 
     def lower(self, state, expert):
-        mesh = self._mesh(state)
-        if self.multi == "per_device" and self._env_axis(mesh):
-            raise NotImplementedError("the split update's programs compile on its first call")
-        return self._for(state).lower(state, expert)
+        f = self._for(state)
+        return f.lower(state, expert) if f is self._plain else f[0].lower(_strip(state, f[1]), expert)
 
     def _cache_size(self) -> int:
-        split = 0 if self._collect is None else self._collect._cache_size() + sum(
-            f._cache_size() for f in self._learn.values())
-        return self._plain._cache_size() + sum(f._cache_size() for f in self._sharded.values()) + split
+        return self._plain._cache_size() + sum(f._cache_size() for f, _ in self._sharded.values())
+
+
+def _empty(tree):
+    """True at every zero-size leaf of ``tree`` (MJX's unused fields, shape (seeds, envs, 0))."""
+    return jax.tree.map(lambda x: x.size == 0, tree)
+
+
+def _strip(tree, empty):
+    """``tree`` without its empty leaves (None in their place): a program over several GPUs that takes or returns a
+    zero-size array crashes XLA's GPU compiler (segmentation fault; JAX 0.11, 2 x H200), so they stay outside it
+    and are made inside as zeros of each device's block shape. (Their values are kept: an empty array has none.)"""
+    return jax.tree.map(lambda e, x: None if e else x, empty, tree)
 
 
 __all__ = ["SeedChunk"]

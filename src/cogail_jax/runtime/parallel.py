@@ -122,7 +122,7 @@ class SeedChunk:
             return f(state, expert)
         f, empty = f
         out, metrics = f(_strip(state, empty), expert)
-        return jax.tree.map(lambda e, x, old: old if e else x, empty, out, state, is_leaf=lambda x: x is None), metrics
+        return jax.tree.map(lambda e, x, old: old if e else x, empty, out, state), metrics  # (empties: not donated)
 
     def lower(self, state, expert):
         f = self._for(state)

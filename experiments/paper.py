@@ -25,6 +25,12 @@ GPU at a time and the rest queued, its results in ``<out>/jobs/<task>-<method>-<
 ``<out>/paper.json`` as it ends. ``--shard i/n`` runs only every n-th job from the i-th (0-based), so that n hosts
 share the grid; ``--merge`` then joins their ``paper.json``.
 
+Each run's entry records the commit it was trained at (and whether the code had uncommitted changes) and the
+``--set`` overrides it was resolved with. A row is *stale* when it was not trained from this checkout's code (another
+commit whose ``src/``, ``envs/`` or ``pyproject.toml`` differ from this one's, or uncommitted changes) or when its
+config is not what the current settings resolve to; ``--check`` lists the stale rows (exit status 1 if any), and a
+grid run trains stale rows again instead of reusing them.
+
 GPU execution is deterministic (XLA_FLAGS ``--xla_gpu_deterministic_ops=true``) unless ``--nondeterministic``.
 """
 from __future__ import annotations
@@ -95,6 +101,59 @@ def validation_robustness_sets(task, mix) -> dict:
     return sets
 
 
+# ----------------------------------------------------------------------------------------------- staleness
+CODE = (":/src", ":/envs", ":/pyproject.toml")  # what a run's figures depend on (git pathspecs from the top)
+
+
+def _git(*args) -> subprocess.CompletedProcess | None:
+    try:
+        return subprocess.run(["git", *args], capture_output=True, text=True, timeout=30, cwd=ROOT)
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def head_commit() -> str | None:
+    """This checkout's commit (None outside a git repository)."""
+    r = _git("rev-parse", "HEAD")
+    return r.stdout.strip() if r is not None and r.returncode == 0 else None
+
+
+def code_changed(commit: str, head: str) -> bool | None:
+    """Whether the code differs between ``commit`` and ``head`` (None: git cannot tell, e.g. an unknown commit)."""
+    if commit == head:
+        return False
+    r = _git("diff", "--quiet", commit, head, "--", *CODE)
+    return None if r is None or r.returncode not in (0, 1) else r.returncode == 1
+
+
+def stale(results: dict, head: str | None = None) -> dict[str, str]:
+    """The rows of ``results`` (paper.json) not trained from ``head``'s code (default: this checkout's) with the
+    config the current settings resolve to: ``{key: why}``."""
+    head = head or head_commit()
+    why = {}
+    for key, res in sorted(results.items()):
+        task, method, mix = key.split("/")[:3]
+        commit = res.get("commit")
+        if not commit:
+            why[key] = "no commit recorded (trained before runs recorded theirs)"
+        elif res.get("dirty"):
+            why[key] = f"trained from uncommitted changes to {commit[:10]}"
+        elif "sets" not in res or "seeds" not in res:
+            why[key] = "its --set overrides or seeds were not recorded"
+        elif res.get("config_hash") != (now := config_hash(resolve_config(task, method, mix, res["seeds"],
+                                                                          res["sets"]))):
+            why[key] = f"config {res.get('config_hash')} is not what the settings resolve to now ({now})"
+        elif head is None:
+            why[key] = "this checkout is not a git repository: its code cannot be compared"
+        else:
+            changed = code_changed(commit, head)
+            if changed is None:
+                why[key] = f"commit {commit[:10]} is not in this repository"
+            elif changed:
+                why[key] = f"trained at {commit[:10]}: the code has changed since"
+    return why
+
+
 def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1,
             ckpt_batch: int | None = None) -> dict:
     from cogail_jax.algo.config import TrainConfig
@@ -112,8 +171,9 @@ def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1,
     train_loop.train_run(cfg, run, resume=resume, progress=False, keep=kept)
     res = eval_runner.eval_run(run, progress=False, every=every, robustness=True, ckpt_batch=ckpt_batch, memory=kept,
                            extra_sets=validation_robustness_sets(task, mix))
+    info = json.loads((run / "run_info.json").read_text()) if (run / "run_info.json").is_file() else {}
     return {**{k: res[k] for k in KEEP if k in res}, "config_hash": config_hash(cfg), "run": str(run),
-            "eval_every": every}
+            "eval_every": every, "commit": info.get("git_commit"), "dirty": info.get("git_dirty"), "sets": extra}
 
 
 # ----------------------------------------------------------------------------------------------- sweeps
@@ -586,6 +646,9 @@ def main(argv=None) -> int:
                         "rewrite the tables")
     p.add_argument("--tables-only", action="store_true",
                    help="train nothing: rewrite the tables (and --readme's block) from <out>/paper.json")
+    p.add_argument("--check", action="store_true",
+                   help="train nothing: list the rows of <out>/paper.json that were not trained from this checkout's "
+                        "code with the current settings (exit status 1 if any)")
     p.add_argument("--readme", default=None, metavar="FILE",
                    help=f"also write the tables into FILE between {BEGIN} and {END}")
     p.add_argument("--gpus", default="all", metavar="N|all",
@@ -610,20 +673,29 @@ def main(argv=None) -> int:
     tasks, methods = a.tasks.split(","), a.methods.split(",")
     seeds = [int(s) for s in a.seeds.split(",")]
     results = json.loads((out / "paper.json").read_text()) if (out / "paper.json").exists() else {}
+    if a.check:
+        why = stale(results)
+        for key, reason in why.items():
+            print(f"stale: {key}: {reason}")
+        print(f"{len(why)} of {len(results)} rows of {out / 'paper.json'} are stale" if why else
+              f"all {len(results)} rows of {out / 'paper.json'} come from this checkout's code "
+              f"({(head_commit() or '?')[:10]}) and the current settings")
+        return 1 if why else 0
     if a.merge or a.tables_only:
         for d in a.merge:
             if (Path(d) / "paper.json").is_file():
                 results.update(json.loads((Path(d) / "paper.json").read_text()))
         tables(results, *table_axes(results, [], []), out, readme)
         tasks = []
-    todo = []
+    todo, old_rows = [], stale(results) if tasks else {}
     for t in tasks:
         for m in methods:
             for mix in (a.mixes.split(",") if t == "fetchq" else ["uniform"]):
                 key = f"{t}/{m}/{mix}" + (f"/{a.label}" if a.label else "")
                 h = config_hash(resolve_config(t, m, mix, seeds, extra))
                 old = results.get(key) or {}
-                if old.get("config_hash") == h and old.get("eval_every") == a.eval_every and not a.force:
+                if (old.get("config_hash") == h and old.get("eval_every") == a.eval_every and not a.force
+                        and key not in old_rows):
                     print(f"{t:9} {m:12} {mix:8} already in {out / 'paper.json'} (same config {h}; --force to "
                           f"evaluate again)", flush=True)
                     continue

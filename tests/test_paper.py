@@ -96,7 +96,8 @@ def test_runs_are_cached_by_their_full_resolved_config(tmp_path, monkeypatch, ca
         calls.append((task, method, mix, dict(extra)))
         cfg = paper.resolve_config(task, method, mix, seeds, extra)
         return {**_res(0.1, 0.1), "config_hash": paper.config_hash(cfg), "eval_every": every,
-                "run": str(paper.run_dir(out, cfg))}
+                "run": str(paper.run_dir(out, cfg)), "commit": paper.head_commit(), "dirty": False,
+                "sets": dict(extra), "seeds": list(seeds)}
 
     monkeypatch.setattr(paper, "run_one", fake_run_one)
     argv = ["--tasks", "fetchq", "--methods", "cogail", "--out", str(tmp_path)]
@@ -119,6 +120,58 @@ def test_runs_are_cached_by_their_full_resolved_config(tmp_path, monkeypatch, ca
     assert paper.run_dir(tmp_path, base).name.startswith("fetchq-cogail-uniform-")
     assert paper.config_hash(base) == paper.config_hash(base.replace())
     assert paper.parse_sets(["reward_norm=false"]) == {"reward_norm": False}
+
+
+def test_stale_rows_are_reported_and_trained_again(tmp_path, monkeypatch, capsys):
+    """A row is fresh only if it was trained from this checkout's code (its commit, or one whose src/, envs/ and
+    pyproject.toml are the same, without uncommitted changes) with the config the current settings resolve to;
+    ``--check`` lists every other row with why, and exits 1; a grid run trains a stale row again."""
+    head = paper.head_commit()
+    if head is None:
+        pytest.skip("not a git checkout")
+    seeds = [300, 400, 500]
+    h = paper.config_hash(paper.resolve_config("fetchq", "cogail", "uniform", seeds, {}))
+    h_lr = paper.config_hash(paper.resolve_config("fetchq", "cogail", "uniform", seeds, {"lr": 1e-4}))
+    fresh = {**_res(0.5, 0.5), "commit": head, "dirty": False, "sets": {}, "seeds": seeds, "config_hash": h}
+    rows = {"fetchq/cogail/uniform": fresh,
+            "fetchq/cogail/uniform/lr": {**fresh, "sets": {"lr": 1e-4}, "config_hash": h_lr},  # a labelled variant
+            "fetchq/ma_gail/uniform": {**fresh, "config_hash": h},  # ma_gail's settings do not give cogail's config
+            "fetchq/cogail/uniform/old": {**_res(0.5, 0.5)},  # trained before runs recorded their commit
+            "fetchq/cogail/uniform/dirty": {**fresh, "dirty": True},
+            "fetchq/cogail/uniform/elsewhere": {**fresh, "commit": "f" * 40}}
+    last_code = paper._git("log", "-1", "--format=%H", "--", *paper.CODE).stdout.strip()
+    rows["fetchq/cogail/D1"] = {**fresh, "commit": last_code,  # the code is the same as HEAD's: fresh
+                                "config_hash": paper.config_hash(paper.resolve_config("fetchq", "cogail", "D1", seeds,
+                                                                                      {}))}
+    root = paper._git("rev-list", "--max-parents=0", "HEAD").stdout.split()[0]
+    old_code = paper.code_changed(root, head)  # the first commit's code: not this one's (unless a shallow clone)
+    if old_code:
+        rows["fetchq/cogail/uniform/root"] = {**fresh, "commit": root}
+    why = paper.stale(rows)
+    assert set(why) == {"fetchq/ma_gail/uniform", "fetchq/cogail/uniform/old", "fetchq/cogail/uniform/dirty",
+                        "fetchq/cogail/uniform/elsewhere"} | ({"fetchq/cogail/uniform/root"} if old_code else set()), why
+    assert "not what the settings resolve to" in why["fetchq/ma_gail/uniform"]
+    assert "no commit" in why["fetchq/cogail/uniform/old"] and "uncommitted" in why["fetchq/cogail/uniform/dirty"]
+    assert "not in this repository" in why["fetchq/cogail/uniform/elsewhere"]
+    if old_code:
+        assert "the code has changed" in why["fetchq/cogail/uniform/root"]
+    # --check: every stale row and why, exit status 1; only fresh rows: 0
+    (tmp_path / "paper.json").write_text(json.dumps(rows))
+    assert paper.main(["--check", "--out", str(tmp_path)]) == 1
+    out = capsys.readouterr().out
+    assert all(f"stale: {k}: {v}" in out for k, v in why.items()), out
+    (tmp_path / "paper.json").write_text(json.dumps({k: rows[k] for k in ("fetchq/cogail/uniform",
+                                                                          "fetchq/cogail/uniform/lr")}))
+    assert paper.main(["--check", "--out", str(tmp_path)]) == 0
+    # a grid run trains the stale row again, even with the same config hash; the fresh one is reused
+    (tmp_path / "paper.json").write_text(json.dumps({"fetchq/cogail/uniform": {**fresh, "dirty": True,
+                                                                                "eval_every": 1}}))
+    calls = []
+    monkeypatch.setattr(paper, "run_one", lambda t, m, mix, s, o, e, every=1, ckpt_batch=1: calls.append(m) or
+                        {**fresh, "eval_every": every})
+    paper.main(["--tasks", "fetchq", "--methods", "cogail", "--out", str(tmp_path)])
+    paper.main(["--tasks", "fetchq", "--methods", "cogail", "--out", str(tmp_path)])
+    assert calls == ["cogail"]
 
 
 def test_bc_single_has_no_interpolation_figure(tmp_path):

@@ -99,11 +99,15 @@ def run_metadata() -> dict:
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5,
                                 cwd=Path(__file__).parent).stdout.strip() or None
+        # uncommitted changes to the code (a run trained so is not the commit's)
+        dirty = None if commit is None else bool(subprocess.run(
+            ["git", "status", "--porcelain", "--", ":/src", ":/envs", ":/pyproject.toml"], capture_output=True,
+            text=True, timeout=5, cwd=Path(__file__).parent).stdout.strip())
     except Exception:  # noqa: BLE001
-        commit = None
+        commit = dirty = None
     from ..runtime.xla import deterministic_ops
 
-    return {"versions": versions, "git_commit": commit, "python": sys.version.split()[0],
+    return {"versions": versions, "git_commit": commit, "git_dirty": dirty, "python": sys.version.split()[0],
             "platform": platform.platform(), "devices": [str(d) for d in jax.devices()],
             "time": time.strftime("%Y-%m-%d %H:%M:%S"),
             # deterministic GPU kernels (on by default in the `cogail` CLI; off with --nondeterministic)

@@ -64,7 +64,7 @@ MIX_SHARES = {"D1": (17, 17, 33, 33), "D2": (33, 33, 17, 17)}  # the demonstrati
 KEEP = ("task", "method", "seeds", "checkpoints", "paper_protocol", "selected", "last", "per_seed_best",
         "breakdowns_at", "strategy_distribution", "strategy_distribution_per_seed", "replay_by_strategy",
         "interpolation_events", "curves", "splits", "extra_sets",
-        "validation_strategy_distribution")  # what paper.json keeps of results.json
+        "validation_strategy_distribution", "coplay")  # what paper.json keeps of results.json
 
 
 def resolve_config(task, method, mix, seeds, extra: dict, budget: str = "paper"):
@@ -452,6 +452,95 @@ def robustness_rows(results: dict, tasks, methods, prefix: str = "robust-", base
     return lines
 
 
+def coplay_rows(results: dict, tasks, methods) -> list[str]:
+    """Closed-loop co-play success (%, selected checkpoint, test episodes) of every method's robot with a reacting
+    human: the task's scripted human, the worst of its variations, and the BC proxy of the test humans; the
+    scripted robot with the same partners as the reference, and each robot's proxy success over the scripted
+    robot's."""
+    lines = ["| task | robot | scripted human | its variations, worst | BC proxy | proxy / scripted robot's |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    for t in tasks:
+        ref = None
+        for m in methods:
+            cp = (results.get(f"{t}/{m}/uniform") or {}).get("coplay")
+            if not cp:
+                continue
+            ref = ref or cp.get("scripted_robot")
+            got = ((cp.get("learned") or {}).get("selected") or {}).get("success") or {}
+            var = [got[p]["mean"] for p in cp.get("partners", []) if p not in ("scripted", "proxy") and p in got]
+            sr = (cp.get("scripted_robot") or {}).get("proxy")
+            ratio = f"{got['proxy']['mean'] / sr:.2f}" if "proxy" in got and sr else "-"
+            worst = f"{100 * min(var):.1f}" if var else "-"
+            lines.append(f"| {t} | {m} | {_pct(got.get('scripted'))} | {worst} | {_pct(got.get('proxy'))} | {ratio} |")
+        if ref:
+            var = [v for p, v in ref.items() if p not in ("scripted", "proxy")]
+            worst = f"{100 * min(var):.1f}" if var else "-"
+            proxy = f"{100 * ref['proxy']:.1f}" if "proxy" in ref else "-"
+            lines.append(f"| {t} | scripted robot (reference) | {100 * ref.get('scripted', 0):.1f} | {worst} | "
+                         f"{proxy} | 1.00 |")
+    return lines if len(lines) > 2 else []
+
+
+def _best(results: dict, task: str, methods, column: str):
+    """(Co-GAIL's selected mean, the best other method and its mean) of ``column`` on ``task``, or None."""
+    def mean(m):
+        r = results.get(f"{task}/{m}/uniform") or {}
+        if column == "interpolation" and m == "bc_single":
+            return None
+        return ((r.get("selected") or {}).get(column) or {}).get("mean")
+
+    mine, others = mean("cogail"), [(mean(m), m) for m in methods if m != "cogail" and mean(m) is not None]
+    if mine is None or not others:
+        return None
+    best, who = max(others)
+    return mine, who, best
+
+
+def claims_rows(results: dict, tasks, methods) -> list[str]:
+    """Where the grid stands on the paper's claims, claim by claim, each beside the paper's own figures."""
+    lines = []
+    for column, claim, table in (("replay", "Co-GAIL replays best", "Table 1"),
+                                 ("interpolation", "Co-GAIL interpolates at least as well as the baselines", "Table 2")):
+        paper = paper_figures(column)
+        parts = []
+        for t in tasks:
+            got = _best(results, t, methods, column)
+            if got is None:
+                continue
+            mine, who, best = got
+            ours = "yes" if (mine >= best if column == "interpolation" else mine > best) else "no"
+            pb = [(v[t][0], m) for m, v in paper.items() if m != "cogail" and t in v]
+            pc = (paper.get("cogail") or {}).get(t)
+            theirs = f"; paper: {pc[0]:.1f} vs {max(pb)[1]} {max(pb)[0]:.1f}" if pc and pb else ""
+            parts.append(f"{t} {ours} ({100 * mine:.1f} vs {who} {100 * best:.1f}{theirs})")
+        if parts:
+            lines.append(f"- *{claim}* ({table}, selected checkpoint): " + "; ".join(parts) + ".")
+    mixes = [mx for mx in ("D1", "D2") if any(f"fetchq/{m}/{mx}" in results for m in methods)]
+    if mixes:
+        parts = []
+        for mx in mixes:
+            rare = {m: min(results[f"fetchq/{m}/{mx}"]["strategy_distribution"].values())
+                    for m in methods if (results.get(f"fetchq/{m}/{mx}") or {}).get("strategy_distribution")}
+            if "cogail" in rare:
+                low = min(((v, m) for m, v in rare.items() if m != "cogail"), default=None)
+                parts.append(f"{mx}: Co-GAIL's rarest strategy {100 * rare['cogail']:.0f} %"
+                             + (f", the lowest other {low[1]} {100 * low[0]:.0f} %" if low else ""))
+        if parts:
+            lines.append("- *Co-GAIL keeps every strategy under unbalanced mixtures* (Fig. 3, fetchq): "
+                         + "; ".join(parts) + ".")
+    parts = []
+    for t in tasks:
+        cp = (results.get(f"{t}/cogail/uniform") or {}).get("coplay") or {}
+        got = (((cp.get("learned") or {}).get("selected") or {}).get("success") or {}).get("proxy")
+        ref = (cp.get("scripted_robot") or {}).get("proxy")
+        if got and ref:
+            parts.append(f"{t} {got['mean'] / ref:.2f}")
+    if parts:
+        lines.append("- *Beyond the paper: co-play with a BC proxy of the test humans*, Co-GAIL's success over the "
+                     "scripted robot's: " + "; ".join(parts) + ".")
+    return lines
+
+
 def stability_rows(results: dict) -> list[str]:
     """Selected vs last checkpoint (replay and interpolation, test) for every run, variants included."""
     lines = ["| run | replay: selected | replay: last | interpolation: selected | interpolation: last |",
@@ -525,7 +614,10 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
     t2 = table(results, tasks, methods, "interpolation", paper_figures("interpolation"))
     f3 = fig3_rows(results, methods)
     rob, stab, var = robustness_rows(results, tasks, methods), stability_rows(results), variant_rows(results)
+    coplay, claims = coplay_rows(results, tasks, methods), claims_rows(results, tasks, methods)
     for name, title, rows in (("robustness.md", "Replay against varied humans (%, selected checkpoint, test)", rob),
+                              ("coplay.md", "Closed-loop co-play with reacting humans (%, selected checkpoint)", coplay),
+                              ("claims.md", "Where the grid stands on the paper's claims", claims),
                               ("stability.md", "Selected vs last checkpoint (%, test)", stab),
                               ("variants.md", "Variants of the shipped settings (%, test)", var),
                               ("validation.md", "Validation figures of every run (%, validation): choices are made "
@@ -582,6 +674,14 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
             block += ["", "Co-GAIL's replay against varied humans (selected checkpoint, test, %; the last column: the "
                       f"worst variation's success over in-distribution replay; every method: [{rel}]({rel})):", "",
                       *mine]
+        if coplay:
+            rel = Path(os.path.relpath(out / "coplay.md", readme.resolve().parent)).as_posix()
+            mine = coplay[:2] + [r for r in coplay[2:] if r.split("|")[2].strip() in ("cogail",
+                                                                                   "scripted robot (reference)")]
+            block += ["", "Closed-loop co-play: Co-GAIL's robot with reacting humans, beside the scripted robot (selected "
+                      f"checkpoint, %; every method: [{rel}]({rel})):", "", *mine]
+        if claims:
+            block += ["", "Where the grid stands on the paper's claims:", "", *claims]
         if stab:
             rel = os.path.relpath(out / "stability.md", readme.resolve().parent)
             block += ["", f"Selected vs last checkpoint, every run: [{Path(rel).as_posix()}]({Path(rel).as_posix()})."]

@@ -174,6 +174,42 @@ def test_stale_rows_are_reported_and_trained_again(tmp_path, monkeypatch, capsys
     assert calls == ["cogail"]
 
 
+def _coplay(scripted, proxy, ref_proxy=0.8):
+    parts = ["scripted", "slow", "pauses", "proxy"]
+    got = {"scripted": _s(scripted), "slow": _s(scripted - 0.2), "pauses": _s(scripted - 0.1), "proxy": _s(proxy)}
+    return {"partners": parts, "learned": {"selected": {"checkpoint": 40, "success": got}},
+            "scripted_robot": {"scripted": 1.0, "slow": 0.9, "pauses": 0.7, "proxy": ref_proxy}}
+
+
+def test_claims_and_coplay_are_generated_from_the_grid(tmp_path):
+    """The co-play table (every method, and the scripted robot as the reference) and the claim-by-claim summary
+    come from paper.json alone, each claim beside the paper's figures; the README block carries Co-GAIL's co-play
+    rows and the claims."""
+    results = {"fetchq/cogail/uniform": {**_res(0.8, 0.8, 0.9, 0.9), "method": "cogail", "coplay": _coplay(0.9, 0.6)},
+               "fetchq/ma_gail/uniform": {**_res(0.7, 0.7, 0.95, 0.95), "method": "ma_gail",
+                                          "coplay": _coplay(0.8, 0.4)},
+               "fetchq/bc_single/uniform": {**_res(0.85, 0.85), "method": "bc_single"},
+               "fetchq/cogail/D1": _res(0.5, 0.5, dist=(0.1, 0.2, 0.3, 0.4)),
+               "fetchq/ma_gail/D1": _res(0.5, 0.5, dist=(0.0, 0.2, 0.3, 0.5))}
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{paper.BEGIN}\nold\n{paper.END}\noutro\n")
+    paper.tables(results, ["fetchq"], ["cogail", "ma_gail", "bc_single"], tmp_path, readme)
+    cp = (tmp_path / "coplay.md").read_text()
+    assert "| fetchq | cogail | 90.0 | 70.0 | 60.0 | 0.75 |" in cp, cp
+    assert "| fetchq | ma_gail | 80.0 | 60.0 | 40.0 | 0.50 |" in cp
+    assert "| fetchq | scripted robot (reference) | 100.0 | 70.0 | 80.0 | 1.00 |" in cp
+    claims = (tmp_path / "claims.md").read_text()
+    # replay: bc_single (85) beats Co-GAIL (80); interpolation: ma_gail (95) beats it, bc_single has none
+    assert "*Co-GAIL replays best* (Table 1, selected checkpoint): fetchq no (80.0 vs bc_single 85.0; paper: 53.3 vs " \
+           "diayn 44.4)." in claims, claims
+    assert "fetchq no (90.0 vs ma_gail 95.0; paper: 82.1 vs ma_infogail 80.2)" in claims, claims
+    assert "D1: Co-GAIL's rarest strategy 10 %, the lowest other ma_gail 0 %" in claims
+    assert "fetchq 0.75" in claims
+    text = readme.read_text()
+    assert "| fetchq | cogail | 90.0 |" in text and "| fetchq | ma_gail | 80.0 |" not in text
+    assert "Where the grid stands on the paper's claims" in text and "*Co-GAIL replays best*" in text
+
+
 def test_bc_single_has_no_interpolation_figure(tmp_path):
     results = {"fetchq/bc_single/uniform": {**_res(0.4, 0.45, 0.0, 0.0), "method": "bc_single"},
                "fetchq/cogail/uniform": {**_res(0.55, 0.6), "method": "cogail"}}

@@ -774,6 +774,9 @@ def main(argv=None) -> int:
     seeds = [int(s) for s in a.seeds.split(",")]
     results = json.loads((out / "paper.json").read_text()) if (out / "paper.json").exists() else {}
     if a.check:
+        if not (out / "paper.json").is_file():
+            raise SystemExit(f"{out / 'paper.json'} does not exist: give the --out folder of a grid (`make paper`'s "
+                             f"results/paper, or docs/results/paper)")
         why = stale(results)
         for key, reason in why.items():
             print(f"stale: {key}: {reason}")

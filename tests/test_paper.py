@@ -163,6 +163,8 @@ def test_stale_rows_are_reported_and_trained_again(tmp_path, monkeypatch, capsys
     (tmp_path / "paper.json").write_text(json.dumps({k: rows[k] for k in ("fetchq/cogail/uniform",
                                                                           "fetchq/cogail/uniform/lr")}))
     assert paper.main(["--check", "--out", str(tmp_path)]) == 0
+    with pytest.raises(SystemExit, match="does not exist"):
+        paper.main(["--check", "--out", str(tmp_path / "nowhere")])
     # a grid run trains the stale row again, even with the same config hash; the fresh one is reused
     (tmp_path / "paper.json").write_text(json.dumps({"fetchq/cogail/uniform": {**fresh, "dirty": True,
                                                                                 "eval_every": 1}}))

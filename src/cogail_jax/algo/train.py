@@ -366,11 +366,11 @@ def ppo_update(ctx: Context, state: TrainState, traj, adv, ret, key, expert):
     moves = state.update < cfg.num_updates - cfg.policy_cooldown
 
     def minibatch(carry, x):
-        idx, k_bc = x
+        idx, k_bc = x[:2]
         sub, opt = carry
         batch = jax.tree.map(lambda x: x[idx], flat)
         if shards.count(cfg) > 1:  # the advantages normalised over every shard's minibatch together
-            a_mean, a_var = shards.moments(cfg, batch["adv"])
+            a_mean, a_var = x[2:]
             batch = {**batch, "adv": (batch["adv"] - a_mean) / (jnp.sqrt(a_var) + 1e-8)}
         nb = shards.local_batch(cfg, cfg.inner_batch)
         exp_b = sample_expert(state.norm, expert, k_bc, nb) if "ppo_bc" in on else None
@@ -381,7 +381,14 @@ def ppo_update(ctx: Context, state: TrainState, traj, adv, ret, key, expert):
     def epoch(carry, key):
         perm = jax.random.permutation(key, n)[: mb * cfg.num_minibatches].reshape(cfg.num_minibatches, mb)
         k_bc = jax.random.split(jax.random.fold_in(key, 1), cfg.num_minibatches)  # leaves perm's stream as it was
-        return jax.lax.scan(minibatch, carry, (perm, k_bc))
+        if shards.count(cfg) == 1:
+            return jax.lax.scan(minibatch, carry, (perm, k_bc))
+        # every minibatch's advantage moments over all shards, gathered once per epoch (not twice per minibatch:
+        # each gather waits for the other devices, and fetchq's 16 minibatches made 32 such waits an update)
+        adv = flat["adv"][perm]
+        a_mean = shards.mean(cfg, adv.mean(1))
+        a_var = shards.mean(cfg, jnp.mean((adv - a_mean[:, None]) ** 2, 1))
+        return jax.lax.scan(minibatch, carry, (perm, k_bc, a_mean, a_var))
 
     sub = {"actor": state.params["actor"], "critic": state.params["critic"]}
     (sub, opt), m = jax.lax.scan(epoch, (sub, state.ppo_opt), jax.random.split(key, cfg.ppo_epochs))

@@ -73,6 +73,26 @@ DEVICE_SCRIPT = textwrap.dedent("""
     leaves = jax.tree.leaves(jax.device_get(st.params))
     np.savez("two_devices.npz", counters=np.stack(counters), episodes=np.stack(episodes),
              **{f"p{i}": np.asarray(x) for i, x in enumerate(leaves)})
+    # zero-size leaves (MJX's unused fields) stay outside the program over both devices, and inside each device sees
+    # its block's shape of them: a toy chunk over a state with an empty env leaf and an empty seed leaf
+    import jax.numpy as jnp
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+    from cogail_jax.runtime.parallel import SeedChunk
+    seen = {}
+    def toy(st, ex):
+        seen.update(env=st["e"].shape, seed=st["s"].shape)
+        return {"x": st["x"] + ex, "e": st["e"], "s": st["s"]}, {"m": jnp.zeros((1, st["x"].shape[0]))}
+    mesh = Mesh(np.asarray(jax.devices()[:2]).reshape(1, 2), ("seeds", "envs"))
+    toy_state = {"x": jax.device_put(jnp.ones((1, 4, 3)), NamedSharding(mesh, P(None, "envs"))),
+                 "e": jax.device_put(jnp.zeros((1, 4, 0)), NamedSharding(mesh, P())),
+                 "s": jax.device_put(jnp.zeros((1, 0)), NamedSharding(mesh, P()))}
+    chunk = SeedChunk(toy, env_fn=toy, env_leaves=lambda st: {"x": True, "e": True, "s": False})
+    lowered = chunk.lower(toy_state, jnp.float32(1.0))
+    new, _ = chunk(toy_state, jnp.float32(1.0))
+    out["toy"] = {"blocks": {k: list(v) for k, v in seen.items()},
+                  "args": [list(a.shape) for a in jax.tree.leaves(lowered.args_info)],
+                  "empties_kept": new["e"] is toy_state["e"] and new["s"] is toy_state["s"],
+                  "x": float(np.asarray(new["x"]).sum())}
     print("RESULT " + json.dumps(out))
 """)
 
@@ -165,6 +185,10 @@ def test_two_devices_match_shards_side_by_side(cfgs, here, two_devices):
     # every shard holds the same parameters (and optimizer states, code counter, ...) bit for bit: the averages
     # are gathered and summed in shard order on every device
     assert out["shards_differ"] == [], out["shards_differ"]
+    # zero-size leaves: outside the program (they crash XLA's GPU compiler there), each device's block inside
+    assert out["toy"]["blocks"] == {"env": [1, 2, 0], "seed": [1, 0]}, out["toy"]
+    assert all(0 not in a for a in out["toy"]["args"]) and out["toy"]["empties_kept"], out["toy"]
+    assert out["toy"]["x"] == 24.0, out["toy"]  # (1 + 1) x 12 elements: the toy update ran on both blocks
     side = here[2]
     assert side["compilations"] == 1
     # Tolerance: the two programs are compiled differently (the shard axis vmapped in one program vs shard_map

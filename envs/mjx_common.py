@@ -68,7 +68,7 @@ __all__ = [
     "pair_xml", "camera_xml", "table_xml", "scene_xml", "build",
     "Gripper", "apply_gripper_action", "physics_step", "rot6d", "tcp_pos", "tcp_mat",
     "tcp_pose_base", "to_base", "finger_gap", "touching", "is_grasping", "body_pos",
-    "body_mat", "make_data", "quat_to_mat", "yaw_of", "wrap_angle", "FrameRenderer",
+    "body_mat", "make_data", "template_data", "quat_to_mat", "yaw_of", "wrap_angle", "FrameRenderer",
 ]
 
 N_GRIPPER_ACT = 7
@@ -268,9 +268,15 @@ def scene_xml(name: str, grippers: Sequence[GripperSpec], worldbody: str = "", c
 
 
 def build(xml: str) -> tuple[mujoco.MjModel, mjx.Model]:
-    """Compile an MJCF string into a MuJoCo model and its MJX model."""
+    """Compile an MJCF string into a MuJoCo model and its MJX model (on this process's first device: MJX's own
+    default, ``jax.devices()[0]``, belongs to process 0 in a run over several processes)."""
     m = mujoco.MjModel.from_xml_string(xml)
-    return m, mjx.put_model(m)
+    return m, mjx.put_model(m, device=jax.local_devices()[0])
+
+
+def template_data(mx: mjx.Model) -> mjx.Data:
+    """MJX's initial data of ``mx`` on this process's first device (see :func:`build`)."""
+    return mjx.make_data(mx, device=jax.local_devices()[0])
 
 
 # ----------------------------------------------------------------------------------------------------

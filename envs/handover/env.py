@@ -128,13 +128,14 @@ class Handover(CollabEnv):
         self.robot = mc.Gripper.from_model(m, "robot", [OBJ])
         self.obj_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, OBJ)
         self.obj_qpos = int(m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, OBJ)])
-        self._template = mc.mjx.make_data(self.mx)
+        self._template = mc.template_data(self.mx)
         self._frames = mc.FrameRenderer(self.mj_model)
 
     # the observation layout and the team's pose ranges (part of the version fingerprint of generated data)
     spec_tag = "obs57-object-frame-poses3"
     object_frame_dims = tuple(range(35, 57))
     orientation_dims = (*range(3, 9), *range(12, 18), *range(24, 30))  # the TCPs' and the bar's 6D rotations
+    position_dims = (*range(0, 3), *range(9, 12))  # the TCPs' positions in their base frames
 
     @property
     def observation_size(self) -> int:

@@ -224,13 +224,14 @@ class SeqManip(CollabEnv):
         self.drawer_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "drawer")
         self.drawer_qpos = int(m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "drawer")])
         self.handle_geom = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "handle")
-        self._template = mjx.make_data(self.mx)
+        self._template = mc.template_data(self.mx)
         self._renderer = None
 
     # the observation layout and the team's pose ranges (part of the version fingerprint of generated data)
     spec_tag = "obs65-object-frame-poses3"
     object_frame_dims = tuple(range(43, 65))
     orientation_dims = (*range(3, 9), *range(12, 18), *range(24, 30))  # the TCPs' and the bar's 6D rotations
+    position_dims = (*range(0, 3), *range(9, 12))  # the TCPs' positions in their base frames
 
     @property
     def observation_size(self) -> int:

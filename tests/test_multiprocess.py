@@ -26,6 +26,11 @@ WORKER = textwrap.dedent("""
     pid, nproc, port, run, stop = sys.argv[1:6]
     if int(nproc) > 1:
         distributed.join(f"127.0.0.1:{port}", int(nproc), int(pid))
+    if sys.argv[7:] == ["mjx"]:  # an MJX task's model and data lie on this process's device, not process 0's
+        import jax, cogail_envs
+        env = cogail_envs.make_env("handover")
+        assert {d for x in jax.tree.leaves((env.mx, env._template)) if isinstance(x, jax.Array)
+                for d in x.devices()} == {jax.local_devices()[0]}
     from cogail_jax.algo.config import TrainConfig
     from cogail_jax.apps.train_loop import train_run
     cfg = TrainConfig.from_dict(json.loads(sys.argv[6]))
@@ -112,12 +117,13 @@ def test_two_processes_resumed_equal_one_process(runs):
 def test_two_processes_per_device_seeds(tmp_path, demo_files):
     """The MJX tasks' multi-device mode (``multi_device=per_device``: each device runs the one-device program on its
     seeds, no collectives) over two processes: each process runs its own device's seed, and the run equals one
-    process with two devices, bit for bit."""
+    process with two devices, bit for bit. Each process builds an MJX env on its own device first."""
     (tmp_path / "worker.py").write_text(WORKER)
     cfg = json.dumps({**CFG, "seeds": [3, 4], "env_shards": 1, "total_steps": 8 * 8 * 2, "multi_device": "per_device",
                       "demos": str(demo_files[0])})
     py, port = sys.executable, _port()
-    two = _together([[py, "worker.py", str(i), "2", str(port), "two", "0", cfg] for i in (0, 1)], _env(1), tmp_path)
+    two = _together([[py, "worker.py", str(i), "2", str(port), "two", "0", cfg, "mjx"] for i in (0, 1)], _env(1),
+                    tmp_path)
     one = _together([[py, "worker.py", "0", "1", "0", "one", "0", cfg]], _env(2), tmp_path)
     for rc, text in two + one:
         assert rc == 0, text[-3000:]

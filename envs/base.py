@@ -57,10 +57,6 @@ class CollabEnv(Env):
     # ``obs_frame`` chooses which of the two its networks read (algo.config)
     object_frame_dims: Sequence[int] = ()
     orientation_dims: Sequence[int] = ()
-    # observation indices of the agents' absolute positions (each TCP in its base frame): with the absolute
-    # orientations, what ``obs_frame="relative"`` leaves unread (a handover placed higher than the demonstrations'
-    # moves them out of range)
-    position_dims: Sequence[int] = ()
 
     @property
     def action_size(self) -> int:

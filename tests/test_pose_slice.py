@@ -72,7 +72,7 @@ def test_slice_is_an_evaluation_set_with_its_own_seeds():
 @pytest.mark.parametrize("task", HELD_TASKS)
 def test_object_frame_features(task):
     """The features are the env's last 22 dims; ``obs_frame="world"`` normalises them (only them) to 0, "object" the
-    absolute orientations (only them), "relative" those and the agents' absolute positions, "both" none."""
+    absolute orientations (only them), "both" none."""
     env = cogail_envs.make_env(task)
     dims = np.asarray(env.object_frame_dims)
     assert len(dims) == 22 and dims[-1] == env.observation_size - 1
@@ -85,10 +85,10 @@ def test_object_frame_features(task):
         norm = train.fit_normalizer(expert, 0.1, train.unread_dims(TrainConfig(task=task, obs_frame=frame), env))
         return np.asarray((x - norm["mean"]) / norm["std"])
 
-    both, world, obj, rel = (normalised(f) for f in ("both", "world", "object", "relative"))
-    rot, pos = np.asarray(env.orientation_dims), np.asarray(env.position_dims)
-    assert len(rot) == 18 and not set(rot) & set(dims) and len(pos) == 6 and not set(pos) & (set(rot) | set(dims))
-    for unread, n in ((dims, world), (rot, obj), (np.concatenate([rot, pos]), rel)):
+    both, world, obj = normalised("both"), normalised("world"), normalised("object")
+    rot = np.asarray(env.orientation_dims)
+    assert len(rot) == 18 and not set(rot) & set(dims)
+    for unread, n in ((dims, world), (rot, obj)):
         assert np.all(n[:, unread] == 0) and np.any(both[:, unread] != 0)
         keep = np.setdiff1d(np.arange(env.observation_size), unread)
         np.testing.assert_array_equal(both[:, keep], n[:, keep])

@@ -135,7 +135,6 @@ class Handover(CollabEnv):
     spec_tag = "obs57-object-frame-poses3"
     object_frame_dims = tuple(range(35, 57))
     orientation_dims = (*range(3, 9), *range(12, 18), *range(24, 30))  # the TCPs' and the bar's 6D rotations
-    position_dims = (*range(0, 3), *range(9, 12))  # the TCPs' positions in their base frames
 
     @property
     def observation_size(self) -> int:

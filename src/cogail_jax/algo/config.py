@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 METHODS = ("cogail", "ma_infogail", "ma_gail", "bc_gail", "bc_single", "diayn")
-OBS_FRAMES = ("world", "both", "object", "relative")
+OBS_FRAMES = ("world", "both", "object")
 
 
 class ConfigError(ValueError):
@@ -85,8 +85,7 @@ class TrainConfig:
     # which observation features the networks read (our addition; the others normalise to 0): "world" the task's
     # own observation without the object-centric features (the env's ``object_frame_dims``: the object's pose in
     # each agent's frame and the reverse), "both" all of them, "object" the object-centric features instead of the
-    # absolute orientations (the env's ``orientation_dims``: nothing that tells how the scene is turned),
-    # "relative" as "object" without the agents' absolute positions either (``position_dims``)
+    # absolute orientations (the env's ``orientation_dims``: nothing that tells how the scene is turned)
     obs_frame: str = "both"
     # discriminator
     disc_loss: str = "auto"  # "bce" | "lsgan" | "auto" (the task's default_config(), else lsgan)

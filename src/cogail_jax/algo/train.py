@@ -493,11 +493,9 @@ def fit_normalizer(expert: dict[str, np.ndarray], std_floor: float = 1e-2, unrea
 
 def unread_dims(cfg: TrainConfig, env) -> tuple[int, ...]:
     """The observation indices ``cfg``'s networks do not read (``obs_frame``): the env's object-centric features
-    ("world"), its absolute orientations ("object"), those and the agents' absolute positions ("relative") or none
-    ("both")."""
-    keys = {"world": ("object_frame_dims",), "object": ("orientation_dims",),
-            "relative": ("orientation_dims", "position_dims")}.get(cfg.obs_frame, ())
-    return tuple(i for k in keys for i in getattr(env, k, ()))
+    ("world"), its absolute orientations ("object") or none ("both")."""
+    key = {"world": "object_frame_dims", "object": "orientation_dims"}.get(cfg.obs_frame)
+    return tuple(getattr(env, key, ())) if key else ()
 
 
 def demo_features(obs_n: np.ndarray, demo: np.ndarray, points: int = 16) -> np.ndarray:

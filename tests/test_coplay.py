@@ -145,17 +145,32 @@ def test_proxy_trains_on_the_test_split_only(demo_files, fetchq):
     assert a_h.shape == (3, fetchq.human_action_size) and np.all(np.abs(np.asarray(a_h)) <= 1)
 
 
-def test_eval_run_reports_coplay(tiny_cfg, demo_files, fetchq, tmp_path):
+def test_eval_run_reports_coplay(tiny_cfg, demo_files, fetchq, tmp_path, caplog):
     """(d) results.json / results.md carry co-play per partner for the learned robot at the selected and the
     paper-protocol checkpoints and for the scripted robot, the proxy's record (trained on the test split: its
-    digest is the test file's), and RUN/coplay.png is drawn."""
+    digest is the test file's), and RUN/coplay.png is drawn. Co-play's proxy and program were made while training
+    ran (``EvalPrep``: nothing of it compiles in the evaluation), and ``cogail eval --coplay-only``, which makes them
+    from nothing, gives the same figures."""
+    import logging
+
     from cogail_jax.apps import eval_runner, train_loop
     from cogail_jax.data import io as data
     from cogail_jax.eval import rollouts
 
     run = tmp_path / "run"
-    train_loop.train_run(tiny_cfg, run, progress=False)
-    eval_runner.eval_run(run, progress=False, coplay=True, coplay_episodes=1)
+    prep = eval_runner.EvalPrep(run, robustness=False, coplay=True, coplay_episodes=1)
+    train_loop.train_run(tiny_cfg, run, progress=False, on_compiled=prep.start)
+    caplog.set_level(logging.WARNING)
+
+    def seen(x):  # a program compiled for sure: the log below does show compilations
+        return x + 1
+
+    with jax.log_compiles(True):
+        eval_runner.eval_run(run, progress=False, coplay=True, coplay_episodes=1, prepared=prep)
+        jax.jit(seen)(np.float32(1))
+    compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling jit(")]
+    assert any(m.startswith("Compiling jit(seen)") for m in compiled)
+    assert not [m for m in compiled if m.startswith(("Compiling jit(coplay)", "Compiling jit(fit)"))]
     res = json.loads((run / "results.json").read_text())
     c = res["coplay"]
     names = ["scripted", "slow", "fast", "pauses", "detour", "noise", "change_of_mind", "proxy"]

@@ -210,6 +210,7 @@ def test_resume_is_exact(tiny_cfg, tmp_path):
     assert speed["device"] and isinstance(speed["deterministic_ops"], bool) and speed["task"] == "fetchq"
     parts = speed["train_parts"]  # BC and the chunk compiled beside it; the calls after the first, checkpoints apart
     assert parts["bc_run"] > 0 and parts["chunk_compile"] > 0 and parts["compile_wait"] >= 0
+    assert speed["compiles"]["chunk"]["count"] == 1  # compiled beside init and BC, for the shapes the calls have
     assert parts["calls"] == runs.total_updates(tiny_cfg) // tiny_cfg.updates_per_call - 1
     assert parts["median_call"] > 0 and parts["checkpoint_excess"] >= 0 and parts["other_excess"] >= 0
 

@@ -423,7 +423,7 @@ def train_step(ctx: Context, state: TrainState, expert):
 
 
 def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
-    """Build ``init(seeds, expert[, before_bc]) -> state``, the jitted ``chunk(state, expert) -> (state, metrics)``
+    """Build ``init(seeds, expert) -> state``, the jitted ``chunk(state, expert) -> (state, metrics)``
     (a ``parallel.SeedChunk``) and the flax modules."""
     ctx = make_context(cfg.validate(), env)
     norm = {"mean": jnp.asarray(norm_stats["mean"], jnp.float32), "std": jnp.asarray(norm_stats["std"], jnp.float32)}
@@ -435,10 +435,8 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
     init_jit = stored(jax.vmap(partial(init_state, ctx, norm, code_init)), "init", (cfg, norm, code_init))
     bc_jit = stored(jax.vmap(partial(bc_pretrain, ctx), in_axes=(0, None)), "bc", cfg)
 
-    def init(seeds, expert, before_bc=None):  # before_bc(state): called with the initial state before BC runs
+    def init(seeds, expert):
         state = init_jit(jnp.stack([jax.random.PRNGKey(int(s)) for s in seeds]))
-        if before_bc is not None:
-            before_bc(state)
         if cfg.bc_steps:
             state, _ = bc_jit(state, expert)
         return state

@@ -453,7 +453,8 @@ def _dispatch(a) -> int:
         cfg = _config_from_args(a)
         evaluates = a.eval and distributed.primary()  # of several processes, process 0 evaluates
         kept = {}  # with --eval, each checkpoint's evaluation parameters kept in memory: none is read back
-        prep = EvalPrep(a.run, a.robustness, a.extra_curves) if evaluates else None  # made ready while training runs
+        prep = EvalPrep(a.run, a.robustness, a.extra_curves, coplay=a.coplay,
+                        coplay_episodes=a.coplay_episodes) if evaluates else None  # made ready while training runs
         run = train_run(cfg, a.run, resume=a.resume, progress=not a.no_progress, devices=a.devices,
                         keep=kept if evaluates else None, on_compiled=prep.start if prep else None,
                         keep_full=a.keep_full)

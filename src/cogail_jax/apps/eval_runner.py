@@ -6,6 +6,7 @@ import json
 import sys
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -249,7 +250,7 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
                 res["extra_sets"] = _replay_extra_sets(s, store, res, sets, memory, eps, inp.replay_fn)
         if coplay:
             with part_clock("coplay"):
-                res["coplay"] = _coplay(s, store, res, memory, coplay_episodes)
+                res["coplay"] = _coplay(s, store, res, memory, coplay_episodes, inp.coplay)
     with clock("write"):
         _write_eval_outputs(run_dir, s, res, at, lat, sets, robustness)
     if prepared is not None:
@@ -259,12 +260,15 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     return res
 
 
-def _coplay(s: Setup, store: Policies, res: dict, memory: dict | None, episodes: int | None) -> dict:
+def _coplay(s: Setup, store: Policies, res: dict, memory: dict | None, episodes: int | None,
+            prepared: coplay_eval.Prepared | None = None) -> dict:
     """results.json's ``coplay``: co-play at the selected and the paper-protocol replay checkpoints
-    (``coplay.evaluate``)."""
+    (``coplay.evaluate``; ``prepared``: its set-up made already, used where made for these ``episodes``)."""
     cks = _extra_set_checkpoints(res)
     states = {st: _checkpoint_params(store, memory, st) for st in sorted(set(cks.values()))}
-    return coplay_eval.evaluate(s, {key: (st, states[st]) for key, st in cks.items()}, episodes)
+    if prepared is not None and prepared.episodes != int(episodes or coplay_eval.default_episodes()):
+        prepared = None
+    return coplay_eval.evaluate(s, {key: (st, states[st]) for key, st in cks.items()}, episodes, prepared=prepared)
 
 
 def eval_coplay(run_dir, episodes: int | None = None) -> dict:
@@ -290,8 +294,9 @@ def eval_coplay(run_dir, episodes: int | None = None) -> dict:
 class EvalInputs:
     """What evaluating a run needs before it reads a checkpoint: the set-up, the extra sets (name -> file) and
     their episodes, the batch of every checkpoint's program (test, validation; the extra sets too with
-    ``extra_curves``) and each set's slice of it, and the two programs (``rollouts.make_eval_fn``,
-    ``rollouts.make_replay_fn``). ``seconds``: how long making them took (``EvalPrep``)."""
+    ``extra_curves``) and each set's slice of it, the two programs (``rollouts.make_eval_fn``,
+    ``rollouts.make_replay_fn``) and, where prepared, co-play's. ``seconds``: how long making them took
+    (``EvalPrep``)."""
     s: Setup
     sets: dict
     eps: dict
@@ -301,6 +306,7 @@ class EvalInputs:
     evaluate_fn: object
     replay_fn: object
     seconds: float = 0.0
+    coplay: coplay_eval.Prepared | None = None  # co-play's proxy and compiled program (``coplay_eval.prepare``)
 
 
 def _eval_inputs(run_dir: Path, sets: dict[str, str], robustness: bool, extra_curves: bool) -> EvalInputs:
@@ -320,15 +326,25 @@ def _eval_struct(state) -> dict:
     return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=dev), _eval_tree(state))
 
 
-def _compile_eval(inp: EvalInputs, struct: dict, checkpoints: int) -> None:
+def _compile_eval(inp: EvalInputs, struct: dict, checkpoints: int, coplay: tuple | None = None) -> None:
     """Compile ``inp``'s programs for a run of ``checkpoints`` checkpoints (``struct``: ``_eval_struct``) as
-    ``eval_run`` will call them: the checkpoints' program for ``default_ckpt_batch`` of them, the replay of the
-    extra sets for one checkpoint."""
+    ``eval_run`` will call them, each in a thread of its own (XLA compiles them side by side; only their tracing
+    takes turns): the checkpoints' program for ``default_ckpt_batch`` of them, the replay of the extra sets for one
+    checkpoint, and with ``coplay`` (its episodes per partner, or None for the default) co-play's proxy and
+    program (``inp.coplay``)."""
     c = default_ckpt_batch(checkpoints)
     stacked = jax.tree.map(lambda x: jax.ShapeDtypeStruct((c,) + x.shape, x.dtype, sharding=x.sharding), struct)
-    inp.evaluate_fn.lower(stacked["params"], stacked["norm"], inp.held).compile()
+    jobs = [lambda: inp.evaluate_fn.lower(stacked["params"], stacked["norm"], inp.held).compile()]
     if inp.eps and not inp.extra_curves:
-        inp.replay_fn.lower(struct["params"], struct["norm"], _extra_batch(inp.s, inp.eps)[0]).compile()
+        jobs.append(lambda: inp.replay_fn.lower(struct["params"], struct["norm"],
+                                                _extra_batch(inp.s, inp.eps)[0]).compile())
+    if coplay is not None:
+        def make_coplay():
+            inp.coplay = coplay_eval.prepare(inp.s, coplay[0], params=struct)
+        jobs.append(make_coplay)
+    with ThreadPoolExecutor(len(jobs), thread_name_prefix="eval-compile") as pool:
+        for f in [pool.submit(job) for job in jobs]:
+            f.result()
 
 
 SWITCH_INTERVAL = 2e-4  # seconds: how soon a thread waiting for Python's lock gets it while EvalPrep traces
@@ -337,15 +353,18 @@ SWITCH_INTERVAL = 2e-4  # seconds: how soon a thread waiting for Python's lock g
 class EvalPrep:
     """``cogail train --eval``'s evaluation made ready while training runs, when the host is idle and the device
     busy: in a background thread, the test, validation and varied-human sets are loaded and the evaluation
-    programs traced and compiled (``EvalInputs``). ``start`` starts it once the training program has compiled
+    programs traced and compiled (``EvalInputs``; with ``coplay``, co-play's proxy trained and its program compiled
+    too, for ``coplay_episodes``). ``start`` starts it once the training program has compiled
     (``train_run``'s ``on_compiled``: while BC runs on a fresh one-device run, else after the first training call;
     started beside the training program's compilation instead, it slowed that compilation, on the critical path,
     by more than it saved: docs/notes.md); ``result()`` waits for it. A preparation that fails prints a warning, and ``eval_run`` then
     prepares again itself (raising the error, if it is one, where it belongs)."""
 
     def __init__(self, run_dir: str | Path, robustness: bool = True, extra_curves: bool = False,
-                 extra_sets: dict[str, str | Path] | None = None):
+                 extra_sets: dict[str, str | Path] | None = None, coplay: bool = False,
+                 coplay_episodes: int | None = None):
         self.run_dir, self.robustness, self.extra_curves = Path(run_dir), robustness, extra_curves
+        self.coplay = (coplay_episodes,) if coplay else None
         self.extra_sets = _extra_sets(extra_sets, None)
         self._thread: threading.Thread | None = None
         self._out: EvalInputs | None = None
@@ -363,7 +382,7 @@ class EvalPrep:
         sys.setswitchinterval(min(interval, SWITCH_INTERVAL))  # the training loop waits less for Python's lock
         try:
             inp = _eval_inputs(self.run_dir, dict(self.extra_sets), self.robustness, self.extra_curves)
-            _compile_eval(inp, struct, checkpoints)
+            _compile_eval(inp, struct, checkpoints, self.coplay)
             inp.seconds = time.perf_counter() - t0
             self._out = inp
         except Exception as e:  # noqa: BLE001  (eval_run prepares again and raises it there)

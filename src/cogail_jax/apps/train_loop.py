@@ -113,11 +113,11 @@ def _abstract(tree):
 
 
 def _compile_during_bc(s: Setup, state, on_compiled, seconds: dict) -> threading.Thread:
-    """A background thread, started: the training chunk compiled for ``state``'s shapes, then ``on_compiled(s,
-    state)`` (``EvalPrep.start``). The main thread meanwhile runs BC: a long device loop that the GPU runtime
-    drives from the calling thread, which holds no Python lock then. A failure only costs the time: the first
-    training call compiles the chunk (and raises the error) itself. ``seconds["chunk_compile"]``: how long the
-    compilation took."""
+    """A background thread, started: the training chunk compiled for ``state``'s shapes (arrays or
+    ``jax.ShapeDtypeStruct``), then ``on_compiled(s, state)`` (``EvalPrep.start``). The main thread meanwhile
+    compiles the initial state's program and runs BC (XLA's compilation and the device loop hold no Python lock).
+    A failure only costs the time: the first training call compiles the chunk (and raises the error) itself.
+    ``seconds["chunk_compile"]``: how long the compilation took."""
     abstract = _abstract(state)
 
     def work():
@@ -146,8 +146,9 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
                  parts: dict | None = None):
     """The state training starts from (restored on resume, else fresh with BC pre-training, timed as ``bc``),
     placed on the devices; returns (state, first update, whether ``on_compiled`` was called or is pending).
-    On one device a fresh run compiles the training chunk while BC runs (``_compile_during_bc``), its compilation
-    in the ``bc`` phase where it outlasts BC. ``parts`` receives the bc phase's ``timing.TRAIN_PARTS``."""
+    On one device a fresh run compiles the training chunk while the initial state compiles and BC runs
+    (``_compile_during_bc``, for the shapes ``init.abstract`` gives), its compilation in the ``bc`` phase where it
+    outlasts them. ``parts`` receives the bc phase's ``timing.TRAIN_PARTS``."""
     parts = {} if parts is None else parts
     cfg = s.cfg
     state, start = None, 0
@@ -161,12 +162,13 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
     compiling = []
     if fresh:
         with clock("bc"):
-            before_bc = None
-            if seed_mesh(devices, len(cfg.seeds), cfg.env_shards) is None:  # one device: the chunk compiles while BC runs
-                def before_bc(st):
-                    compiling.append(_compile_during_bc(s, st, on_compiled, parts))
             t0 = time.perf_counter()
-            state = jax.block_until_ready(s.init(cfg.seeds, s.expert, before_bc))
+            if seed_mesh(devices, len(cfg.seeds), cfg.env_shards) is None:  # one device: the chunk compiles meanwhile
+                here = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])  # where init puts its state
+                abstract = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=here),
+                                        s.init.abstract(cfg.seeds, s.expert))
+                compiling.append(_compile_during_bc(s, abstract, on_compiled, parts))
+            state = jax.block_until_ready(s.init(cfg.seeds, s.expert))
             t1 = time.perf_counter()
             for t in compiling:
                 t.join()

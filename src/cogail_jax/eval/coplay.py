@@ -287,12 +287,22 @@ def make_coplay_fn(env, cfg=None, nets=None):
         out = {"success": m["success"], "strategy": jax.vmap(env.classify_strategy)(m), "length": state.info["t"]}
         return jax.tree.map(unflat, out)
 
-    jitted = jax.jit(run)
+    if learned:  # its trace kept between runs (``programs.stored``): the config fixes env, networks and team
+        from ..runtime.programs import stored
+
+        jitted = stored(run, "coplay", ("coplay", cfg))
+    else:
+        jitted = jax.jit(run)
 
     def call(params, norm, proxy, eps):
         eps = {k: jnp.asarray(eps[k]) for k in EPISODE_KEYS}
         return jitted(params, norm, proxy, eps) if learned else jitted(None, None, proxy, eps)
 
+    def lower(params, norm, proxy, eps):  # ahead of time: arrays or jax.ShapeDtypeStruct for params / norm
+        eps = {k: jnp.asarray(eps[k]) for k in EPISODE_KEYS}
+        return jitted.lower(params, norm, proxy, eps) if learned else jitted.lower(None, None, proxy, eps)
+
+    call.lower = lower
     return call
 
 
@@ -315,13 +325,24 @@ def default_episodes() -> int:
     return 4 if jax.default_backend() == "cpu" else 64
 
 
-def evaluate(s, checkpoints: dict[str, tuple[int, dict]], episodes: int | None = None,
-             proxy_steps: int | None = None) -> dict:
-    """The co-play results of a run's set-up ``s`` (``runs.Setup``, its test split loaded): the proxy trained on
-    ``s.heldout`` (the test split), then every partner with the learned robot at each of ``checkpoints``
-    ({name: (update, eval_params)}: e.g. the one selected on validation and the paper-protocol replay one) and with
-    the scripted robot; one compiled program, one call per checkpoint. The dict that results.json's ``coplay``
-    holds (:func:`markdown` writes it)."""
+class Prepared(NamedTuple):
+    """What co-play needs before it reads a checkpoint (:func:`prepare`): the proxy and its record, the partners,
+    whether a scripted robot plays, the episode batch and the compiled program."""
+
+    proxy: Proxy
+    proxy_info: dict
+    names: list
+    scripted: bool
+    episodes: int
+    batch: dict
+    run: object
+
+
+def prepare(s, episodes: int | None = None, proxy_steps: int | None = None, params=None) -> Prepared:
+    """Co-play's set-up for a run's set-up ``s`` (``runs.Setup``, its test split loaded): the proxy trained on
+    ``s.heldout`` (the test split), the episode batch and the program; with ``params`` (``{"params", "norm"}`` of
+    one checkpoint, leading seed axis; arrays or ``jax.ShapeDtypeStruct``) the program is compiled for them too.
+    ``cogail train --eval`` makes it while training runs."""
     env, cfg = s.env, s.cfg
     if s.heldout is None:
         raise CoplayError("co-play needs the test split to train the human proxy on: build the set-up with the "
@@ -332,17 +353,33 @@ def evaluate(s, checkpoints: dict[str, tuple[int, dict]], episodes: int | None =
     names, scripted = partners(env), has_scripted_robot(env)
     batch = episode_batch(env, names, episodes, ("learned", "scripted") if scripted else ("learned",))
     run = make_coplay_fn(env, cfg, s.nets)
+    if params is not None:
+        run.lower(params["params"], params["norm"], proxy, batch).compile()
+    return Prepared(proxy, proxy_info, names, scripted, episodes, batch, run)
+
+
+def evaluate(s, checkpoints: dict[str, tuple[int, dict]], episodes: int | None = None,
+             proxy_steps: int | None = None, prepared: Prepared | None = None) -> dict:
+    """The co-play results of a run's set-up ``s`` (``runs.Setup``, its test split loaded): the proxy trained on
+    ``s.heldout`` (the test split), then every partner with the learned robot at each of ``checkpoints``
+    ({name: (update, eval_params)}: e.g. the one selected on validation and the paper-protocol replay one) and with
+    the scripted robot; one compiled program, one call per checkpoint. ``prepared``: :func:`prepare`'s result
+    (made with the same ``episodes``), else made here. The dict that results.json's ``coplay`` holds
+    (:func:`markdown` writes it)."""
+    p = prepared or prepare(s, episodes, proxy_steps)
+    cfg, batch = s.cfg, p.batch
     learned, ref = {}, None
     done: dict[int, dict] = {}
     for key, (step, state) in checkpoints.items():
         if step not in done:
-            done[step] = jax.tree.map(np.asarray, jax.device_get(run(state["params"], state["norm"], proxy, batch)))
+            done[step] = jax.tree.map(np.asarray, jax.device_get(p.run(state["params"], state["norm"], p.proxy,
+                                                                        batch)))
         out = done[step]
         learned[key] = {"checkpoint": int(step), "success": _per_partner(out["success"], batch, "learned", cfg.seeds)}
-        if scripted and ref is None:
+        if p.scripted and ref is None:
             ref = {k: v["mean"] for k, v in _per_partner(out["success"][:1], batch, "scripted", [0]).items()}
-    res = {"partners": names, "episodes": episodes, "seed": COPLAY_SEED, "learned": learned,
-           "scripted_robot": ref, "proxy": proxy_info}
+    res = {"partners": p.names, "episodes": p.episodes, "seed": COPLAY_SEED, "learned": learned,
+           "scripted_robot": ref, "proxy": dict(p.proxy_info)}
     if ref is not None:
         res["proxy"]["success_with_scripted_robot"] = ref.get(PROXY)
     return res
@@ -413,5 +450,5 @@ def figure(c: dict, out_png, title: str | None = None) -> Path:
     return out_png
 
 
-__all__ = ["partners", "has_scripted_robot", "Proxy", "PROXY_LAGS", "proxy_inputs", "proxy_action", "train_proxy", "data_digest", "episode_batch",
+__all__ = ["partners", "has_scripted_robot", "Proxy", "PROXY_LAGS", "proxy_inputs", "proxy_action", "train_proxy", "data_digest", "episode_batch", "Prepared", "prepare",
            "make_coplay_fn", "evaluate", "markdown", "figure", "CoplayError", "COPLAY_SEED", "SCRIPTED", "PROXY"]

@@ -93,9 +93,11 @@ def main(argv=None) -> None:
     p.add_argument("--seeds", default="300,400,500")
     p.add_argument("--budget", default="paper")
     p.add_argument("--cases", default="cold,warm,new-config", help="which of cold, warm, new-config to run, in order")
+    p.add_argument("--keep", action="store_true",
+                   help="keep --out's cache and data of an earlier invocation (to run the later cases on their own)")
     a = p.parse_args(argv)
     out = Path(a.out).absolute()
-    for d in ("cache", "data"):  # cold means cold: nothing compiled or made before
+    for d in ("cache", "data") if not a.keep else ():  # cold means cold: nothing compiled or made before
         shutil.rmtree(out / d, ignore_errors=True)
     out.mkdir(parents=True, exist_ok=True)
     rows = []

@@ -328,22 +328,23 @@ def _eval_struct(state) -> dict:
 
 def _compile_eval(inp: EvalInputs, struct: dict, checkpoints: int, coplay: tuple | None = None) -> None:
     """Compile ``inp``'s programs for a run of ``checkpoints`` checkpoints (``struct``: ``_eval_struct``) as
-    ``eval_run`` will call them, each in a thread of its own (XLA compiles them side by side; only their tracing
-    takes turns): the checkpoints' program for ``default_ckpt_batch`` of them, the replay of the extra sets for one
-    checkpoint, and with ``coplay`` (its episodes per partner, or None for the default) co-play's proxy and
-    program (``inp.coplay``)."""
+    ``eval_run`` will call them: the checkpoints' program for ``default_ckpt_batch`` of them, the replay of the
+    extra sets for one checkpoint, and with ``coplay`` (its episodes per partner, or None for the default) co-play's
+    proxy and program (``inp.coplay``). They are traced one after another in this thread and each compiles in a
+    thread of its own as soon as it is traced (XLA's compilations run side by side; tracing holds Python's lock, and
+    three programs tracing at once took three times as long each, slowing the training loop beside them)."""
     c = default_ckpt_batch(checkpoints)
     stacked = jax.tree.map(lambda x: jax.ShapeDtypeStruct((c,) + x.shape, x.dtype, sharding=x.sharding), struct)
-    jobs = [lambda: inp.evaluate_fn.lower(stacked["params"], stacked["norm"], inp.held).compile()]
-    if inp.eps and not inp.extra_curves:
-        jobs.append(lambda: inp.replay_fn.lower(struct["params"], struct["norm"],
-                                                _extra_batch(inp.s, inp.eps)[0]).compile())
-    if coplay is not None:
-        def make_coplay():
-            inp.coplay = coplay_eval.prepare(inp.s, coplay[0], params=struct)
-        jobs.append(make_coplay)
-    with ThreadPoolExecutor(len(jobs), thread_name_prefix="eval-compile") as pool:
-        for f in [pool.submit(job) for job in jobs]:
+    with ThreadPoolExecutor(3, thread_name_prefix="eval-compile") as pool:
+        compiling = [pool.submit(inp.evaluate_fn.lower(stacked["params"], stacked["norm"], inp.held).compile)]
+        if inp.eps and not inp.extra_curves:
+            compiling.append(pool.submit(inp.replay_fn.lower(struct["params"], struct["norm"],
+                                                             _extra_batch(inp.s, inp.eps)[0]).compile))
+        if coplay is not None:
+            p = coplay_eval.prepare(inp.s, coplay[0])
+            compiling.append(pool.submit(p.run.lower(struct["params"], struct["norm"], p.proxy, p.batch).compile))
+            inp.coplay = p
+        for f in compiling:
             f.result()
 
 

@@ -338,11 +338,11 @@ class Prepared(NamedTuple):
     run: object
 
 
-def prepare(s, episodes: int | None = None, proxy_steps: int | None = None, params=None) -> Prepared:
+def prepare(s, episodes: int | None = None, proxy_steps: int | None = None) -> Prepared:
     """Co-play's set-up for a run's set-up ``s`` (``runs.Setup``, its test split loaded): the proxy trained on
-    ``s.heldout`` (the test split), the episode batch and the program; with ``params`` (``{"params", "norm"}`` of
-    one checkpoint, leading seed axis; arrays or ``jax.ShapeDtypeStruct``) the program is compiled for them too.
-    ``cogail train --eval`` makes it while training runs."""
+    ``s.heldout`` (the test split), the episode batch and the program (``run.lower(params, norm, proxy, batch)``
+    lowers it ahead of time, for one checkpoint's ``params`` / ``norm`` with a leading seed axis, arrays or
+    ``jax.ShapeDtypeStruct``). ``cogail train --eval`` makes it while training runs."""
     env, cfg = s.env, s.cfg
     if s.heldout is None:
         raise CoplayError("co-play needs the test split to train the human proxy on: build the set-up with the "
@@ -352,10 +352,7 @@ def prepare(s, episodes: int | None = None, proxy_steps: int | None = None, para
     proxy, proxy_info = train_proxy(s.heldout, TEST_SPLIT, steps=proxy_steps, file=(s.files or {}).get("test"))
     names, scripted = partners(env), has_scripted_robot(env)
     batch = episode_batch(env, names, episodes, ("learned", "scripted") if scripted else ("learned",))
-    run = make_coplay_fn(env, cfg, s.nets)
-    if params is not None:
-        run.lower(params["params"], params["norm"], proxy, batch).compile()
-    return Prepared(proxy, proxy_info, names, scripted, episodes, batch, run)
+    return Prepared(proxy, proxy_info, names, scripted, episodes, batch, make_coplay_fn(env, cfg, s.nets))
 
 
 def evaluate(s, checkpoints: dict[str, tuple[int, dict]], episodes: int | None = None,

@@ -65,8 +65,8 @@ def run_task(task: str, out: Path, seeds: str, budget: str, cases=tuple(c for c,
         print(f"{task} {case}: data {t_data:.1f} s + train {t_train:.1f} s = {t_data + t_train:.1f} s, "
               f"run folder {rows[-1]['run_mb']:.1f} MB", flush=True)
         (out / f"{task}-{case}.json").write_text(json.dumps(rows[-1], indent=1))
-    same = ("cold" in cases and "warm" in cases
-            and filecmp.cmp(out / f"{task}-cold" / "results.json", out / f"{task}-warm" / "results.json", shallow=False))
+    cold, warm = (out / f"{task}-{c}" / "results.json" for c in ("cold", "warm"))  # (warm may follow with --keep)
+    same = cold.exists() and warm.exists() and filecmp.cmp(cold, warm, shallow=False)
     for r in rows:
         r["cold_warm_results_identical"] = same
     return rows

@@ -1,6 +1,8 @@
 """programs.stored: a jitted function whose traced program is kept on disk and loaded by a later process."""
 from __future__ import annotations
 
+import re
+
 import flax.struct
 import jax
 import jax.numpy as jnp
@@ -116,3 +118,75 @@ def test_digest_is_by_value_not_identity():
     assert programs.digest(jax.tree.structure(args())) == programs.digest(jax.tree.structure(args()))
     assert programs.digest(jax.tree.structure(args())) != programs.digest(jax.tree.structure(args()[0]))
     assert programs.digest({"a": 1.0}) != programs.digest({"a": 1})
+
+
+# ------------------------------------------------------------------ programs kept under config.program_key
+ZERO_OFF = ("bc_coef", "entropy_coef", "gp_coef", "lambda_z", "diversity_coef")  # 0 switches a term off
+
+
+def _update_fields(cfg, zero: bool) -> dict:
+    """Other values of every ``UPDATE_ONLY`` field: with ``zero`` the terms that 0 switches off are off."""
+    from cogail_jax.algo.config import UPDATE_ONLY
+
+    out = {}
+    for name in UPDATE_ONLY:
+        v = getattr(cfg, name)
+        if isinstance(v, bool):
+            out[name] = not v
+        elif isinstance(v, int):
+            out[name] = 2 * v if v else 1
+        else:
+            out[name] = 0.0 if zero and name in ZERO_OFF else 1.5 * v + 0.125
+    return out
+
+
+def _program_texts(cfg, monkeypatch) -> dict[str, list[str]]:
+    """The StableHLO of the programs that do not train (the initial state, BC, the checkpoints' evaluation, the
+    extra sets' replay, co-play), traced for ``cfg``, by name."""
+    from cogail_jax.apps import eval_runner, runs
+    from cogail_jax.eval import coplay, rollouts
+
+    made = []
+    init = programs.Stored.__init__
+
+    def record(self, *a, **k):
+        init(self, *a, **k)
+        made.append(self)
+
+    monkeypatch.setattr(programs.Stored, "__init__", record)
+    monkeypatch.setattr(programs, "program_dir", lambda: None)  # trace every program: nothing loaded
+    s = runs.build(cfg)
+    state = s.init.abstract(cfg.seeds, s.expert)  # traces init and BC
+    struct = eval_runner._eval_struct(state)
+    stacked = jax.tree.map(lambda x: jax.ShapeDtypeStruct((1,) + x.shape, x.dtype), struct)
+    held, _ = rollouts.stack_sets({"test": s.heldout, "validation": s.validation}, steps=s.env.max_episode_steps)
+    rollouts.make_eval_fn(s.cfg, s.env, s.nets).lower(stacked["params"], stacked["norm"], held)
+    rollouts.make_replay_fn(s.cfg, s.env, s.nets).lower(struct["params"], struct["norm"], s.heldout)
+    p = coplay.prepare(s, episodes=2, proxy_steps=1)
+    p.run.lower(struct["params"], struct["norm"], p.proxy, p.batch)
+    monkeypatch.undo()
+    texts = {}
+    for st in made:
+        for prog in st._programs.values():
+            texts.setdefault(st.name, []).append(_without_locations(prog.exp.mlir_module()))
+    return texts
+
+
+def _without_locations(text: str) -> str:
+    """A module's text without its source locations (they name the caller's lines)."""
+    text = "\n".join(line for line in text.splitlines() if not line.startswith("#loc"))
+    return re.sub(r" loc\((#loc\d*|unknown)\)", "", text)
+
+
+def test_update_only_fields_leave_the_other_programs_unchanged(tiny_cfg, monkeypatch):
+    """A run that changes only the training update's hyperparameters (config.UPDATE_ONLY) loads the initial state's,
+    BC's and the evaluation's kept programs: each of those programs must be the same for every value of them (else
+    a program kept for one value would run for another). A field one of them reads (code_noise: the initial
+    state's codes) changes it."""
+    base = tiny_cfg.replace(bc_steps=2, policy_ema=0.5)
+    ref = _program_texts(base, monkeypatch)
+    assert set(ref) == {"init", "bc", "evaluate", "replay", "coplay"}
+    for zero in (True, False):
+        assert _program_texts(base.replace(**_update_fields(base, zero)), monkeypatch) == ref, zero
+    control = _program_texts(base.replace(code_noise=0.3), monkeypatch)
+    assert control["init"] != ref["init"] and control["bc"] == ref["bc"]

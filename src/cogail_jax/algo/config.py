@@ -247,6 +247,24 @@ class TrainConfig:
         return cls.from_dict(json.loads(Path(path).read_text()))
 
 
+# The fields that only the training update reads (its losses, optimiser steps and schedule): the programs that do not
+# train (the initial state, BC, the evaluation's programs) are kept between runs (``programs.stored``) under
+# ``program_key(cfg)``, the config with these at their defaults, so that a run that changes only these (a sweep of
+# bc_coef, say) loads those programs instead of tracing them again. tests/test_programs.py checks that changing
+# each of them leaves every such program unchanged.
+UPDATE_ONLY = ("total_steps", "updates_per_call", "checkpoint_every", "lr", "gamma", "gae_lambda", "clip_eps",
+               "ppo_epochs", "num_minibatches", "value_coef", "entropy_coef", "max_grad_norm", "reward_norm",
+               "policy_cooldown", "bc_coef", "gp_coef", "disc_lr", "disc_instance_noise", "lambda_z",
+               "diversity_coef", "aux_lr", "inner_updates")
+
+
+def program_key(cfg: TrainConfig) -> TrainConfig:
+    """``cfg`` with the ``UPDATE_ONLY`` fields at their defaults: the key under which a program that does not train
+    is kept."""
+    defaults = TrainConfig()
+    return cfg.replace(**{name: getattr(defaults, name) for name in UPDATE_ONLY})
+
+
 def field_help() -> dict[str, object]:
     return {f.name: f.default for f in dataclasses.fields(TrainConfig)}
 
@@ -277,4 +295,5 @@ def resolve(task: str, budget: str = "paper", fields: dict | None = None) -> Tra
     return TrainConfig.from_dict({**own, **fields, "task": task}).validate()
 
 
-__all__ = ["TrainConfig", "ConfigError", "METHODS", "field", "field_help", "resolve", "task_default"]
+__all__ = ["TrainConfig", "ConfigError", "METHODS", "UPDATE_ONLY", "field", "field_help", "program_key", "resolve",
+           "task_default"]

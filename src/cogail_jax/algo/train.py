@@ -25,7 +25,7 @@ import numpy as np
 import optax
 
 from . import losses, shards
-from .config import TrainConfig
+from .config import TrainConfig, program_key
 from .networks import disc_kind, gaussian_log_prob, history_input, make_networks, normalize
 from ..runtime.parallel import SeedChunk
 from ..runtime.programs import stored
@@ -432,8 +432,9 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
                  if "features" in norm_stats else jnp.zeros((n_demos, cfg.code_dim)))
     # made once: every init() call of these functions reuses the compiled programs, and later runs of the same
     # config and code load them instead of tracing them again (programs.stored)
-    init_jit = stored(jax.vmap(partial(init_state, ctx, norm, code_init)), "init", (cfg, norm, code_init))
-    bc_jit = stored(jax.vmap(partial(bc_pretrain, ctx), in_axes=(0, None)), "bc", cfg)
+    init_jit = stored(jax.vmap(partial(init_state, ctx, norm, code_init)), "init",
+                     (program_key(cfg), norm, code_init))
+    bc_jit = stored(jax.vmap(partial(bc_pretrain, ctx), in_axes=(0, None)), "bc", program_key(cfg))
 
     def init(seeds, expert):
         state = init_jit(jnp.stack([jax.random.PRNGKey(int(s)) for s in seeds]))

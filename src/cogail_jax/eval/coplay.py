@@ -288,9 +288,10 @@ def make_coplay_fn(env, cfg=None, nets=None):
         return jax.tree.map(unflat, out)
 
     if learned:  # its trace kept between runs (``programs.stored``): the config fixes env, networks and team
+        from ..algo.config import program_key
         from ..runtime.programs import stored
 
-        jitted = stored(run, "coplay", ("coplay", cfg))
+        jitted = stored(run, "coplay", ("coplay", program_key(cfg)))
     else:
         jitted = jax.jit(run)
 

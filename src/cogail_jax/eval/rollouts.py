@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..algo.config import TrainConfig
+from ..algo.config import TrainConfig, program_key
 from ..runtime.programs import stored
 
 
@@ -178,7 +178,8 @@ def make_replay_fn(cfg: TrainConfig, env, nets):
     extra test sets at the reported checkpoints (``trainer.eval_run``, ``trainer.eval_extra_sets``); with
     ``extra_curves`` ``eval_run`` replays them in the batch of ``make_eval_fn`` instead."""
     episodes = _episodes_fn(cfg, env, nets)
-    run = stored(lambda params, norm, ep: episodes(params, norm, replay_episodes(ep, cfg.code_dim)), "replay", cfg)
+    run = stored(lambda params, norm, ep: episodes(params, norm, replay_episodes(ep, cfg.code_dim)), "replay",
+                 program_key(cfg))
 
     def padded(ep):  # recordings padded to the steps the replays run (a host-side shape)
         width = replay_steps(env, np.asarray(jax.device_get(ep["length"])), ep.get("margin"))
@@ -238,7 +239,7 @@ def make_eval_fn(cfg: TrainConfig, env, nets):
                "latent": latent(params, norm, held["obs"], held["prev_ah"], held["length"])}
         return jax.tree.map(lambda x: x.reshape((C, S) + x.shape[1:]), out)
 
-    return stored(evaluate, "evaluate", cfg)
+    return stored(evaluate, "evaluate", program_key(cfg))
 
 
 def heldout_arrays(demos, patient: bool = False, margin: bool = False) -> dict[str, np.ndarray]:

@@ -21,7 +21,7 @@ from cogail_jax.algo import shards, train
 from cogail_jax.algo.config import ConfigError, TrainConfig
 
 CALLS = 2  # chunk calls of every run (updates_per_call updates each)
-ONE_SHARD_DIGEST = "489e74d69c0a6c498a21a8080b34d60983cbf014e80f820617d9a4dc3523ef2a"
+ONE_SHARD_DIGEST = "44e08d06dfcaf0e3b9ce680c9342c263b427ea8991408c0500f71e8e2c55366f"
 # the collective primitives (JAX's names; also the ones a variant such as psum_invariant starts with)
 COLLECTIVES = ("all_gather", "psum", "pmax", "pmin", "ppermute", "all_to_all", "axis_index", "reduce_scatter")
 
@@ -233,20 +233,22 @@ def test_one_shard_program_has_no_collectives(cfgs, here):
     runs on each device) gathers over "envs" and reads its shard index."""
     s1, s2 = here[1]["setup"], here[2]["setup"]
     expert = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), np.asarray(x).dtype), s1.expert)
-    jaxpr1 = jax.make_jaxpr(s1.chunk.fn)(here[1]["shapes"], expert)
+    hyper = s1.chunk.extra  # the update's hyperparameters, the program's third argument
+    jaxpr1 = jax.make_jaxpr(s1.chunk.fn)(here[1]["shapes"], expert, hyper)
     p1 = _primitives(jaxpr1)
     assert not _collectives(p1), _collectives(p1)
-    # bit for bit the program of the trainer before env shards existed (commit 75a9e65): the same jaxpr, so the same
-    # compiled program and results. Traced with a fixed number of expert steps (the generated demonstrations' total
+    # bit for bit the program of the trainer before env shards existed (commit 75a9e65; since the update's
+    # hyperparameters became the program's argument, its jaxpr reads them from there, with the same results): the
+    # same jaxpr, so the same compiled program and results. Traced with a fixed number of expert steps (the generated demonstrations' total
     # length could differ on another CPU). A deliberate change of the update changes this digest: replace it then.
     fixed = jax.tree.map(lambda x: jax.ShapeDtypeStruct((1000,) + x.shape[1:], x.dtype), expert)
-    digest = hashlib.sha256(str(jax.make_jaxpr(s1.chunk.fn)(here[1]["shapes"], fixed)).encode()).hexdigest()
+    digest = hashlib.sha256(str(jax.make_jaxpr(s1.chunk.fn)(here[1]["shapes"], fixed, hyper)).encode()).hexdigest()
     assert digest == ONE_SHARD_DIGEST
     # one shard's part of the state (its envs), traced with the axis bound as shard_map binds it
     full = here[2]["shapes"]
     local = jax.tree.map(lambda f, x: jax.ShapeDtypeStruct(x.shape[:1] + (x.shape[1] // 2,) + x.shape[2:], x.dtype)
                          if f else x, train.env_leaves(full), full)
-    p2 = _primitives(jax.make_jaxpr(s2.chunk.env_fn, axis_env=[(shards.AXIS, 2)])(local, expert))
+    p2 = _primitives(jax.make_jaxpr(s2.chunk.env_fn, axis_env=[(shards.AXIS, 2)])(local, expert, hyper))
     assert {"all_gather", "axis_index"} <= _collectives(p2), _collectives(p2)
 
 

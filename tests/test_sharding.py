@@ -86,7 +86,7 @@ def test_sharded_mjx_chunk_has_no_cross_device_collectives(tmp_path):
         txt = compiled.as_text()
         from cogail_jax.runtime import parallel
         st = parallel._strip(st, s.chunk._for(st)[1])
-        st2, _ = compiled(st, ex)
+        st2, _ = compiled(st, ex, *s.chunk._extra(s.chunk._mesh(st)))
         sig = lambda t: [(x.sharding, x.shape, x.dtype) for x in jax.tree.leaves(t)]
         assert sig(st2) == sig(st), "the next call would compile again: its inputs are placed differently"
         # the MJX tasks' default on several devices: the one-device program per device (XLA's GPU compiler

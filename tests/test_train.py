@@ -74,6 +74,31 @@ def test_programs_are_loaded_not_traced_again(setup, trained, tiny_cfg, fetchq):
     assert [s.shape for s in jax.tree.leaves(shapes)] == [x.shape for x in jax.tree.leaves(a)]
 
 
+def test_a_new_value_of_an_update_hyperparameter_runs_the_kept_program(setup, tiny_cfg, fetchq, monkeypatch):
+    """The update's real-valued hyperparameters (config.HYPER: lr, clip_eps, bc_coef, ...) are the training
+    program's arguments: another value of them loads the kept program (nothing traced) and trains with that value,
+    bitwise as a program traced for it; a term switched on or off (0 or not) is another program."""
+    from cogail_jax.runtime import programs
+
+    init, chunk, expert = setup
+    cfg = tiny_cfg.replace(lr=tiny_cfg.lr * 3, clip_eps=0.1)
+    norm = train.fit_normalizer(expert)
+    init2, chunk2, _ = train.make_train_fns(cfg, fetchq, norm)
+    a, _ = chunk(init(tiny_cfg.seeds, expert), expert)
+    b, mb = chunk2(init2(cfg.seeds, expert), expert)
+    assert chunk2._plain.traces == 0 and chunk2._plain.key == chunk._plain.key
+    assert not all(np.array_equal(np.asarray(x), np.asarray(y))  # the new values are used
+                   for x, y in zip(jax.tree.leaves(a.params["actor"]), jax.tree.leaves(b.params["actor"])))
+    monkeypatch.setattr(programs, "program_dir", lambda: None)  # traced for cfg, nothing kept or loaded
+    init3, chunk3, _ = train.make_train_fns(cfg, fetchq, norm)
+    c, mc = chunk3(init3(cfg.seeds, expert), expert)
+    assert chunk3._plain.traces == 1
+    for x, y in zip(jax.tree.leaves((b, mb)), jax.tree.leaves((c, mc))):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    switched = train.make_train_fns(tiny_cfg.replace(entropy_coef=0.01), fetchq, norm)[1]
+    assert switched._plain.key != chunk._plain.key
+
+
 def test_abstract_state_after_bc_matches_eval_shape(tiny_cfg, fetchq, setup):
     """``init.abstract`` with BC pre-training: the BC program's output shapes, as ``jax.eval_shape`` of ``init``."""
     _, _, expert = setup

@@ -258,6 +258,24 @@ UPDATE_ONLY = ("total_steps", "updates_per_call", "checkpoint_every", "lr", "gam
                "diversity_coef", "aux_lr", "inner_updates")
 
 
+# Of those, the real numbers: the training program takes them as arguments (``hyper_values``), not as constants, so
+# that a run that changes only their values (not which of them are 0, which switches terms off) runs the kept
+# training program of another (``chunk_key``).
+HYPER = ("lr", "gamma", "gae_lambda", "clip_eps", "value_coef", "entropy_coef", "max_grad_norm", "bc_coef", "gp_coef",
+         "disc_lr", "lambda_z", "diversity_coef", "aux_lr")
+
+
+def hyper_values(cfg: TrainConfig) -> dict[str, float]:
+    """The ``HYPER`` fields of ``cfg``, by name."""
+    return {name: float(getattr(cfg, name)) for name in HYPER}
+
+
+def chunk_key(cfg: TrainConfig) -> TrainConfig:
+    """``cfg`` with each ``HYPER`` field reduced to whether it is 0: the key under which the training program is
+    kept."""
+    return cfg.replace(**{name: float(getattr(cfg, name) != 0) for name in HYPER})
+
+
 def program_key(cfg: TrainConfig) -> TrainConfig:
     """``cfg`` with the ``UPDATE_ONLY`` fields at their defaults: the key under which a program that does not train
     is kept."""
@@ -295,5 +313,5 @@ def resolve(task: str, budget: str = "paper", fields: dict | None = None) -> Tra
     return TrainConfig.from_dict({**own, **fields, "task": task}).validate()
 
 
-__all__ = ["TrainConfig", "ConfigError", "METHODS", "UPDATE_ONLY", "field", "field_help", "program_key", "resolve",
-           "task_default"]
+__all__ = ["TrainConfig", "ConfigError", "METHODS", "HYPER", "UPDATE_ONLY", "chunk_key", "field", "field_help",
+           "hyper_values", "program_key", "resolve", "task_default"]

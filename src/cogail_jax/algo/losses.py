@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from .config import METHODS, TrainConfig
+from .config import METHODS, TrainConfig, hyper_values
 from .networks import gaussian_entropy, gaussian_log_prob
 
 
@@ -279,15 +279,17 @@ def expert_code(cfg: TrainConfig, params, batch):
     return jax.lax.stop_gradient(jnp.tanh(params["codes"])[batch["demo"]])
 
 
-def aux_objective(cfg: TrainConfig, nets: Nets, params, gen_batch, exp_batch):
+def aux_objective(cfg: TrainConfig, nets: Nets, params, gen_batch, exp_batch, hp: dict | None = None):
     """The psi / co-policy step: lambda_1 L_z (and DIAYN's q fit) on generated data, lambda_2 L_a and
     lambda_r L_r on expert data, for the terms the preset has. ``gen_batch`` or ``exp_batch`` None leaves
-    that data's terms out. Returns ``(loss, {term: value})``."""
+    that data's terms out. ``hp``: the ``config.HYPER`` values (default: ``cfg``'s). Returns
+    ``(loss, {term: value})``."""
+    hp = hyper_values(cfg) if hp is None else hp
     on = objective_terms(cfg)
     terms = {}
     if gen_batch is not None:
         if "L_z" in on:
-            terms["loss_z"] = (cfg.lambda_z, code_loss(nets.psi, nets.actor, params, gen_batch, nets.human_size,
+            terms["loss_z"] = (hp["lambda_z"], code_loss(nets.psi, nets.actor, params, gen_batch, nets.human_size,
                                                        train="psi" if lz_in_ppo(cfg) else "both"))
         if "diversity" in on:
             h = jnp.concatenate([gen_batch["hist"], gen_batch["prev_ah"]], -1)
@@ -305,21 +307,22 @@ def aux_objective(cfg: TrainConfig, nets: Nets, params, gen_batch, exp_batch):
     return total, {k: v for k, (_, v) in terms.items()}
 
 
-def ppo_objective(cfg: TrainConfig, nets: Nets, params, batch, exp_batch):
+def ppo_objective(cfg: TrainConfig, nets: Nets, params, batch, exp_batch, hp: dict | None = None):
     """Clipped PPO on a minibatch; with ``ppo_bc``, + bc_coef x both agents' squared error on an expert
     minibatch, acting on psi's code of the expert history (held fixed: no gradient reaches psi; without L_a
     the demonstration's code, ``expert_code``); with ``L_z`` and no ``L_a`` (``lz_in_ppo``), + lambda_z x L_z on the
     minibatch's own generated steps, psi held fixed (InfoGAIL: the policy minimises the GAIL objective and
-    lambda_z L_z together)."""
-    total, m = ppo_loss(nets.actor, nets.critic, params, batch, cfg.clip_eps, cfg.value_coef, cfg.entropy_coef,
+    lambda_z L_z together). ``hp``: the ``config.HYPER`` values (default: ``cfg``'s)."""
+    hp = hyper_values(cfg) if hp is None else hp
+    total, m = ppo_loss(nets.actor, nets.critic, params, batch, hp["clip_eps"], hp["value_coef"], hp["entropy_coef"],
                         normalize_adv=cfg.env_shards == 1)
     if "ppo_bc" in objective_terms(cfg):
         la, lr = behaviour_loss(_code_net(cfg, nets), nets.actor, params, exp_batch, nets.human_size,
                                 psi_grad=False, z=expert_code(cfg, params, exp_batch))
-        total, m = total + cfg.bc_coef * (la + lr), {**m, "ppo_bc": la + lr}
+        total, m = total + hp["bc_coef"] * (la + lr), {**m, "ppo_bc": la + lr}
     if lz_in_ppo(cfg):
         lz = code_loss(nets.psi, nets.actor, params, batch, nets.human_size, train="policy")
-        total, m = total + cfg.lambda_z * lz, {**m, "ppo_lz": lz}
+        total, m = total + hp["lambda_z"] * lz, {**m, "ppo_lz": lz}
     return total, m
 
 

@@ -25,7 +25,7 @@ import numpy as np
 import optax
 
 from . import losses, shards
-from .config import TrainConfig, program_key
+from .config import HYPER, TrainConfig, chunk_key, hyper_values, program_key
 from .networks import disc_kind, gaussian_log_prob, history_input, make_networks, normalize
 from ..runtime.parallel import SeedChunk
 from ..runtime.programs import stored
@@ -59,7 +59,9 @@ class TrainState(struct.PyTreeNode):
 
 
 class Context(NamedTuple):
-    """The static parts of training: config, task, networks (modules and apply functions), optimizers."""
+    """The parts of training: config, task, networks (modules and apply functions), optimizers, and ``hp``, the
+    values of the config's ``HYPER`` fields that the update uses (the training program's arguments while it is
+    traced, else the config's own numbers); the config's own decide which terms are on."""
 
     cfg: TrainConfig
     env: Any
@@ -68,23 +70,27 @@ class Context(NamedTuple):
     ppo_tx: optax.GradientTransformation
     aux_tx: optax.GradientTransformation
     disc_tx: optax.GradientTransformation
+    hp: dict
 
 
-def make_context(cfg: TrainConfig, env) -> Context:
+def make_context(cfg: TrainConfig, env, hp: dict | None = None) -> Context:
+    """``hp``: the ``HYPER`` values to use (e.g. traced arguments), else ``cfg``'s."""
+    hp = hyper_values(cfg) if hp is None else hp
     modules = make_networks(cfg, env)
     nets = losses.Nets(*(modules[k].apply for k in ("actor", "critic", "psi", "disc")), env.human_action_size,
                        disc_kind(cfg, env))
-    return Context(cfg, env, modules, nets, *make_optimizers(cfg))
+    return Context(cfg, env, modules, nets, *make_optimizers(cfg, hp), hp)
 
 
-def make_optimizers(cfg: TrainConfig):
+def make_optimizers(cfg: TrainConfig, hp: dict | None = None):
+    hp = hyper_values(cfg) if hp is None else hp
     total = cfg.num_updates * cfg.ppo_epochs * cfg.num_minibatches
-    sched = optax.linear_schedule(cfg.lr, 0.0, total)
-    ppo = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(sched, eps=1e-5))
+    sched = optax.linear_schedule(hp["lr"], 0.0, total)
+    ppo = optax.chain(optax.clip_by_global_norm(hp["max_grad_norm"]), optax.adam(sched, eps=1e-5))
     inner = cfg.num_updates * (cfg.ppo_epochs * cfg.num_minibatches if cfg.bc_only else cfg.inner_updates)
     decay = (lambda lr: optax.linear_schedule(lr, 0.0, inner)) if cfg.aux_lr_decay else (lambda lr: lr)
-    aux = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(decay(cfg.aux_lr)))
-    disc = optax.adam(decay(cfg.disc_lr))
+    aux = optax.chain(optax.clip_by_global_norm(hp["max_grad_norm"]), optax.adam(decay(hp["aux_lr"])))
+    disc = optax.adam(decay(hp["disc_lr"]))
     return ppo, aux, disc
 
 
@@ -243,7 +249,7 @@ def aux_step(ctx: Context, params, aux_opt, gen_b, exp_b):
         return params, aux_opt, {}
     sub = {"actor": params["actor"], "psi": params["psi"], "codes": params["codes"]}
     (_, m), g = jax.value_and_grad(
-        lambda s: losses.aux_objective(ctx.cfg, ctx.nets, {**params, **s}, gen_b, exp_b), has_aux=True)(sub)
+        lambda s: losses.aux_objective(ctx.cfg, ctx.nets, {**params, **s}, gen_b, exp_b, ctx.hp), has_aux=True)(sub)
     upd, aux_opt = ctx.aux_tx.update(shards.mean(ctx.cfg, g), aux_opt, sub)
     return {**params, **optax.apply_updates(sub, upd)}, aux_opt, m
 
@@ -258,7 +264,8 @@ def disc_step(ctx: Context, params, disc_opt, gen_b, exp_b, key):
     x_e = jnp.concatenate([exp_b["obs"], a_e], -1)
     x_p = jnp.concatenate([gen_b["obs"], gen_b["act"]], -1)
     (_, m), g = jax.value_and_grad(
-        lambda p: losses.discriminator_loss(nets.disc, p, x_e, x_p, nets.disc_kind, cfg.gp_coef, key), has_aux=True
+        lambda p: losses.discriminator_loss(nets.disc, p, x_e, x_p, nets.disc_kind, ctx.hp["gp_coef"], key),
+        has_aux=True
     )(params["disc"])
     upd, disc_opt = ctx.disc_tx.update(shards.mean(cfg, g), disc_opt, params["disc"])
     return optax.apply_updates(params["disc"], upd), disc_opt, m
@@ -288,12 +295,13 @@ def inner_updates(ctx: Context, state: TrainState, flat, expert, key):
 
 
 # ------------------------------------------------------------------------------------------------ rewards, PPO
-def normalize_returns(cfg: TrainConfig, ret_rms, ret_acc, r, done):
-    """Rewards divided by the running std of the discounted return; its accumulator restarts at episode ends."""
+def normalize_returns(cfg: TrainConfig, gamma, ret_rms, ret_acc, r, done):
+    """Rewards divided by the running std of the discounted return (discount ``gamma``); its accumulator restarts at
+    episode ends."""
 
     def body(ret, x):
         r_t, d_t = x
-        ret = ret * cfg.gamma + r_t
+        ret = ret * gamma + r_t
         return ret * (1 - d_t), ret
 
     ret_acc, rets = jax.lax.scan(body, ret_acc, (r, done), unroll=cfg.scan_unroll)
@@ -313,10 +321,10 @@ def rewards(ctx: Context, state: TrainState, traj):
     r = losses.discriminator_reward(nets.disc(state.params["disc"], x), nets.disc_kind)
     if "diversity" in losses.objective_terms(cfg):
         h = jnp.concatenate([history_input(state.norm, traj["hist"]), traj["prev_ah"]], -1)
-        r = r + cfg.diversity_coef * losses.diversity_reward(nets.psi, state.params, h, traj["z"])
+        r = r + ctx.hp["diversity_coef"] * losses.diversity_reward(nets.psi, state.params, h, traj["z"])
     if not cfg.reward_norm:
         return state, r, r
-    rms, acc, r_norm = normalize_returns(cfg, state.ret_rms, state.ret_acc, r, traj["done"])
+    rms, acc, r_norm = normalize_returns(cfg, ctx.hp["gamma"], state.ret_rms, state.ret_acc, r, traj["done"])
     return state.replace(ret_rms=rms, ret_acc=acc), r_norm, r
 
 
@@ -340,7 +348,7 @@ def ppo_grad(ctx: Context, params, batch, exp_b, moves):
     ``gail_human`` (BC-GAIL's frozen human). Returns ``(grads, metrics)``."""
     sub = {"actor": params["actor"], "critic": params["critic"]}
     (_, m), g = jax.value_and_grad(
-        lambda p: losses.ppo_objective(ctx.cfg, ctx.nets, {**params, **p}, batch, exp_b), has_aux=True)(sub)
+        lambda p: losses.ppo_objective(ctx.cfg, ctx.nets, {**params, **p}, batch, exp_b, ctx.hp), has_aux=True)(sub)
     g_actor = jax.tree.map(lambda x: x * moves, g["actor"])
     if "gail_human" not in losses.objective_terms(ctx.cfg):
         g_actor = mask_frozen_human(ctx.nets.human_size, g_actor)
@@ -410,7 +418,7 @@ def train_step(ctx: Context, state: TrainState, expert):
     state, inner_m = inner_updates(ctx, state, flat, expert, k_inner)
     state, r_norm, r_raw = rewards(ctx, state, traj)
     adv, ret = losses.gae(r_norm, traj["value"], traj["done"], traj["truncation"], traj["final_value"], last_value,
-                          cfg.gamma, cfg.gae_lambda, cfg.scan_unroll)
+                          ctx.hp["gamma"], ctx.hp["gae_lambda"], cfg.scan_unroll)
     state, ppo_m = ppo_update(ctx, state, traj, adv, ret, k_ppo, expert)
     state = state.replace(params=ema_update(cfg, state.params))
     episodes = shards.total(cfg, traj["done"].sum())
@@ -442,15 +450,18 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             state, _ = bc_jit(state, expert)
         return state
 
-    def chunk(state, expert):  # with env shards: one per device, shards.AXIS bound by parallel.SeedChunk's shard_map
-        step = jax.vmap(partial(train_step, ctx), in_axes=(0, None))
+    def traced(hyper):  # the context with the HYPER values the program is given (parallel.SeedChunk's extra)
+        return make_context(ctx.cfg, env, {name: hyper[i] for i, name in enumerate(HYPER)})
+
+    def chunk(state, expert, hyper):  # with env shards: one per device, shards.AXIS bound by parallel.SeedChunk's shard_map
+        step = jax.vmap(partial(train_step, traced(hyper)), in_axes=(0, None))
         return jax.lax.scan(lambda s, _: step(s, expert), state, None, length=cfg.updates_per_call)
 
-    def chunk_here(state, expert):  # every env shard on this device, side by side: shards.AXIS bound by vmap
-        flags, e = env_leaves(state), shards.count(cfg)
+    def chunk_here(state, expert, hyper):  # every env shard on this device, side by side: shards.AXIS bound by vmap
+        c, flags, e = traced(hyper), env_leaves(state), shards.count(cfg)
         split = jax.tree.map(lambda f, x: (x.reshape(x.shape[:1] + (e, x.shape[1] // e) + x.shape[2:]) if f else
                                            jnp.broadcast_to(x[:, None], x.shape[:1] + (e,) + x.shape[1:])), flags, state)
-        step = jax.vmap(jax.vmap(partial(train_step, ctx), in_axes=(0, None), axis_name=shards.AXIS), in_axes=(0, None))
+        step = jax.vmap(jax.vmap(partial(train_step, c), in_axes=(0, None), axis_name=shards.AXIS), in_axes=(0, None))
         split, m = jax.lax.scan(lambda s, _: step(s, expert), split, None, length=cfg.updates_per_call)
         state = jax.tree.map(lambda f, x: x.reshape(x.shape[:1] + (-1,) + x.shape[3:]) if f else x[:, 0], flags, split)
         return state, jax.tree.map(lambda x: x[:, :, 0], m)  # (updates, seeds): the same on every shard
@@ -462,7 +473,11 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
 
     init.abstract = abstract
     one = chunk if shards.count(cfg) == 1 else chunk_here
-    return init, SeedChunk(one, cfg.multi_device_mode, key=cfg, env_fn=chunk, env_leaves=env_leaves), ctx.modules
+    # the update's hyperparameters are the program's argument (``extra``), not constants: a run that changes only
+    # their values runs the training program kept for another (``config.chunk_key``)
+    hyper = np.array([hyper_values(cfg)[name] for name in HYPER], np.float32)
+    return init, SeedChunk(one, cfg.multi_device_mode, key=chunk_key(cfg), env_fn=chunk, env_leaves=env_leaves,
+                           extra=hyper), ctx.modules
 
 
 ENV_FIELDS = ("ret_acc", "env_state", "z", "hist", "prev_ah")  # TrainState's fields with an env axis

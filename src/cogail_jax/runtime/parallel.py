@@ -25,14 +25,20 @@ class SeedChunk:
     ``env_fn`` under ``shard_map`` over both axes: each device runs its seeds' share of envs, and the updates average
     their gradients over ``"envs"`` (the only collectives: none inside the physics). ``env_leaves(state)`` tells which
     of the state's leaves have an env axis (after the seed axis).
+
+    ``extra``: an array every call passes to ``fn`` / ``env_fn`` as a third argument (``fn(state, expert, extra)``),
+    the same on every device: values the program takes as an argument instead of baking them in as constants
+    (the update's hyperparameters, so that runs that differ only in them share one program).
     """
 
-    def __init__(self, fn, multi: str = "shard_map", key=None, env_fn=None, env_leaves=None):
+    def __init__(self, fn, multi: str = "shard_map", key=None, env_fn=None, env_leaves=None, extra=None):
         from .programs import stored
 
         self.fn = fn
         self.env_fn, self.env_leaves = env_fn, env_leaves
         self.multi = multi
+        self.extra = None if extra is None else np.asarray(extra)
+        self._extra_on: dict = {}  # the extra array placed, by device or mesh
         # one device: the program is kept between runs (programs.stored; ``key``: what ``fn`` closes over)
         self._plain = jax.jit(fn, donate_argnums=(0,)) if key is None else stored(fn, "chunk", key, (0,))
         self._sharded = {}
@@ -70,13 +76,13 @@ class SeedChunk:
                 (x.shape[1] // blocks["envs"],) + x.shape[2:] if f else x.shape[1:]), x.dtype), flags, state)
             specs = _strip(jax.tree.map(lambda f, _: P("seeds", "envs") if f else P("seeds"), flags, state), empty)
 
-            def body(st, expert):
+            def body(st, expert, *extra):
                 st = jax.tree.map(lambda e, block, x: jnp.zeros(block.shape, block.dtype) if e else x, empty, local, st)
-                st, metrics = fn(st, expert)
+                st, metrics = fn(st, expert, *extra)
                 return _strip(st, empty), metrics
 
-            f = jax.shard_map(body, mesh=mesh, in_specs=(specs, P()), out_specs=(specs, P(None, "seeds")),
-                              check_vma=False)
+            f = jax.shard_map(body, mesh=mesh, in_specs=(specs, P()) + ((P(),) if self.extra is not None else ()),
+                              out_specs=(specs, P(None, "seeds")), check_vma=False)
             self._sharded[mesh] = (jax.jit(f, donate_argnums=(0,)), empty)
         return self._sharded[mesh]
 
@@ -103,8 +109,8 @@ class SeedChunk:
                 return jax.device_put(np.zeros(shape, parts[0].dtype), NamedSharding(mesh, P()))
             return jax.make_array_from_single_device_arrays(tuple(shape), NamedSharding(mesh, pspec), list(parts))
 
-        args = [(jax.tree.map(lambda x: piece(x, i), state), jax.tree.map(lambda x: shard(x, i), expert))
-                for i in range(len(devs))]
+        args = [(jax.tree.map(lambda x: piece(x, i), state), jax.tree.map(lambda x: shard(x, i), expert),
+                 *self._extra(devs[i])) for i in range(len(devs))]
         del state
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=len(devs))
@@ -113,20 +119,43 @@ class SeedChunk:
         metrics = jax.tree.map(lambda *p: whole(p, 1, P(None, "seeds")), *[o[1] for o in outs])
         return new_state, metrics
 
+    def _extra(self, where) -> tuple:
+        """``(extra,)`` placed on a device or replicated over a mesh (once), or ``()`` without one."""
+        if self.extra is None:
+            return ()
+        if where not in self._extra_on:
+            from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+
+            if isinstance(where, Mesh):
+                self._extra_on[where] = jax.make_array_from_callback(
+                    self.extra.shape, NamedSharding(where, P()), lambda idx: self.extra[idx])
+            else:
+                self._extra_on[where] = jax.device_put(self.extra, where)
+        return (self._extra_on[where],)
+
+    @staticmethod
+    def _device(state):
+        """The device of a one-device state (``jax.ShapeDtypeStruct`` without a sharding: the first local one)."""
+        sh = getattr(jax.tree.leaves(state)[0], "sharding", None)
+        devices = getattr(sh, "device_set", None)
+        return next(iter(devices)) if devices and len(devices) == 1 else jax.local_devices()[0]
+
     def __call__(self, state, expert):
         mesh = self._mesh(state)
         if mesh is not None and self.multi == "per_device" and not self._env_axis(mesh):
             return self._per_device(mesh, state, expert)
         f = self._for(state)
         if f is self._plain:
-            return f(state, expert)
+            return f(state, expert, *self._extra(self._device(state)))
         f, empty = f
-        out, metrics = f(_strip(state, empty), expert)
+        out, metrics = f(_strip(state, empty), expert, *self._extra(mesh))
         return jax.tree.map(lambda e, x, old: old if e else x, empty, out, state), metrics  # (empties: not donated)
 
     def lower(self, state, expert):
         f = self._for(state)
-        return f.lower(state, expert) if f is self._plain else f[0].lower(_strip(state, f[1]), expert)
+        if f is self._plain:
+            return f.lower(state, expert, *self._extra(self._device(state)))
+        return f[0].lower(_strip(state, f[1]), expert, *self._extra(self._mesh(state)))
 
     def _cache_size(self) -> int:
         return self._plain._cache_size() + sum(f._cache_size() for f, _ in self._sharded.values())

@@ -12,7 +12,10 @@ holds still, descend, close, wait for the human to let go, retreat.
 How the robot decides: it never reads the strategy (region); WHERE it goes is the bar's actual pose (state),
 wherever the human carries it. WHEN: it starts once the human has lifted the bar and moves over the bar
 once the human holds it still at the spot (``H_HOLD``: the human's own phase, as a partner who sees the
-human has arrived), closes, and retreats once the human has let go (state).
+human has arrived), closes, and retreats once the human has let go (state). HOW FAST: each episode draws the
+robot's speed (0.5-0.9), acceleration, gain and reaction delay (4-25 steps); in the training split's episodes
+(``variations.PROMPT_ROBOT``) the robot is the most prompt of them (0.9, the top acceleration and gain, 4 steps),
+so that the learned robot does not keep the person waiting.
 
 Poses and places (the ranges a person plausibly uses; the robot grasps the bar wherever it is):
 

@@ -7,7 +7,9 @@ human holds the bar, the waiting points (ranges below), how far the drawer is pu
 acceleration limits, gains, start and reaction delays, a pause after lifting and action noise. Motions are
 proportional control with velocity and acceleration limits (bell-shaped, minimum-jerk-like speed
 profiles). Waiting phases are gated: their timer only runs while the awaited condition holds (e.g. the
-drawer is open and held), so every hand-off has a reaction delay.
+drawer is open and held), so every hand-off has a reaction delay. In the training split's episodes
+(``variations.PROMPT_ROBOT``) the robot is the most prompt of the team's draws (top speed, acceleration and gain,
+the shortest start and reaction delays), so that the learned robot does not keep the person waiting.
 
 1. human-hands-over: the human picks the bar up and carries it out to the handover spot; once the human
    has come past the middle of the table towards it (TCP y > ``CUE_Y``) the robot reacts, grasps the

@@ -52,7 +52,8 @@ class Team:
     follows the human's apparent strategy under a change of mind, for the training sets' varied humans).
     ``held_out``: ``init`` also takes ``variation | variations.POSE_HELDOUT``, an episode whose object pose or
     place lies in the team's held-out slice (outside every training, validation and test episode's range; the
-    ``pose_heldout`` evaluation set).
+    ``pose_heldout`` evaluation set). ``prompt_robot``: ``init`` also takes ``variation | variations.PROMPT_ROBOT``,
+    a robot at the prompt end of its ranges; the training split's demonstrations are made so.
 
     Closed-loop co-play (:mod:`cogail_jax.eval.coplay`) takes each agent of the team alone, against a partner
     that is not its scripted teammate; both are optional (a task without them has no scripted co-play partner):
@@ -72,6 +73,7 @@ class Team:
     variations: bool = False
     partner_can_follow: bool = False
     held_out: bool = False
+    prompt_robot: bool = False
     human_act: Callable | None = None
     robot_act: Callable | None = None
 

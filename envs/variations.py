@@ -24,6 +24,13 @@ human's moves suggest and switches when the human turns to its own, as a partner
 Training sets use it (``robustness.ensure_varied_training_set``) so that the demonstrations show a robot
 recovering from a wrong guess; the test and validation humans are recorded with the robot that reads the plan.
 
+``variation | PROMPT_ROBOT`` (teams with ``prompt_robot``) makes the scripted ROBOT the team's most prompt
+demonstrator: the top of its speed, acceleration and gain ranges and the shortest of its reaction delays, the
+human and everything else drawn as without it. The training split's demonstrations use it (``cogail_jax.data``):
+the learned robot imitates a partner who does not keep the person waiting, and the recorded humans of the test and
+validation splits, who let go when their own (varied) partner had taken the object, are not waiting for a robot
+slower than theirs.
+
 ``variation | POSE_HELDOUT`` (teams with ``held_out``) draws the episode's object pose and hand-over place from the
 team's held-out slice (the outer band of each range, e.g. the outer third of the carry angle) instead of its
 training range: every default, training, validation and test episode lies in the training range, and the
@@ -38,6 +45,7 @@ VARIATIONS = ("slow", "fast", "pauses", "detour", "noise", "change_of_mind")
 NONE, SLOW, FAST, PAUSES, DETOUR, NOISE, CHANGE_OF_MIND = range(7)
 FOLLOWING_PARTNER = 8  # flag bit on a variation id: the scripted robot follows the human's apparent strategy
 POSE_HELDOUT = 16      # flag bit: the human presents the object in the team's held-out pose / place slice
+PROMPT_ROBOT = 32      # flag bit: the scripted robot is the team's most prompt demonstrator (the training split's)
 HELD_OUT = "pose_heldout"  # the name of that slice's evaluation set (teams with ``held_out``)
 
 # salt for the variation's own random draws (fold_in of the team key): the default draws stay as they were
@@ -61,13 +69,19 @@ def variation_id(variation: int | str | None) -> int:
 
 
 def human_variation(variation) -> jax.Array:
-    """The variation id without its flag bits (:data:`FOLLOWING_PARTNER`, :data:`POSE_HELDOUT`)."""
+    """The variation id without its flag bits (:data:`FOLLOWING_PARTNER`, :data:`POSE_HELDOUT`,
+    :data:`PROMPT_ROBOT`)."""
     return jnp.asarray(variation, jnp.int32) % FOLLOWING_PARTNER
 
 
 def held_out(variation) -> jax.Array:
     """Whether ``variation`` carries :data:`POSE_HELDOUT` (the episode's pose is drawn from the held-out slice)."""
     return (jnp.asarray(variation, jnp.int32) & POSE_HELDOUT) > 0
+
+
+def prompt(variation) -> jax.Array:
+    """Whether ``variation`` carries :data:`PROMPT_ROBOT`."""
+    return (jnp.asarray(variation, jnp.int32) & PROMPT_ROBOT) > 0
 
 
 def following(variation) -> jax.Array:
@@ -107,6 +121,7 @@ def paused(starts: jax.Array, lens: jax.Array, t: jax.Array) -> jax.Array:
     return jnp.any((t >= starts) & (t < starts + lens))
 
 
-__all__ = ["VARIATIONS", "FOLLOWING_PARTNER", "POSE_HELDOUT", "HELD_OUT", "human_variation", "held_out", "following",
+__all__ = ["VARIATIONS", "FOLLOWING_PARTNER", "POSE_HELDOUT", "PROMPT_ROBOT", "HELD_OUT", "human_variation", "held_out",
+           "following", "prompt",
            "slice_draw", "NONE", "SLOW", "FAST", "PAUSES", "DETOUR", "NOISE", "CHANGE_OF_MIND",
            "variation_id", "pace_factor", "pause_schedule", "paused"]

@@ -92,3 +92,37 @@ def test_object_frame_features(task):
         assert np.all(n[:, unread] == 0) and np.any(both[:, unread] != 0)
         keep = np.setdiff1d(np.arange(env.observation_size), unread)
         np.testing.assert_array_equal(both[:, keep], n[:, keep])
+
+
+PROMPT_TASKS = [t for t in ("handover", "seqmanip") if get_task(t).team.prompt_robot]
+
+
+@pytest.mark.parametrize("task", PROMPT_TASKS)
+def test_prompt_robot_changes_the_robot_only(task):
+    """``variation | PROMPT_ROBOT`` (the training split's): the robot at the top of its speed, acceleration and gain
+    ranges and at its shortest reaction, above every plain draw; every human field and every other draw as without
+    the flag (the same episodes otherwise). The test and validation splits are made without it."""
+    from cogail_envs.variations import PROMPT_ROBOT
+
+    from cogail_jax.data.generate import training_flags
+
+    env, team = cogail_envs.make_env(task), get_task(task).team
+    init = jax.jit(jax.vmap(lambda k, v: team.init(env, k, env.uniform_mix(), v), in_axes=(0, None)))
+    keys = jax.random.split(jax.random.PRNGKey(0), 200)
+    for v in (0, 5):  # none, and a varied human (noise)
+        plain, s0 = init(keys, jnp.int32(v))
+        fast, s1 = init(keys, jnp.int32(v | PROMPT_ROBOT))
+        np.testing.assert_array_equal(np.asarray(s0), np.asarray(s1))
+        robot = ("vmax", "amax", "gain", "delay", "react")
+        for name in plain._fields:
+            a, b = np.asarray(getattr(plain, name)), np.asarray(getattr(fast, name))
+            if name in robot:
+                np.testing.assert_array_equal(a[:, 0], b[:, 0])  # the human's
+                top = b[:, 1]
+                assert np.all(top == top[0]), name
+                assert (top[0] >= a[:, 1].max() if name != "delay" and name != "react" else top[0] <= a[:, 1].min())
+                assert np.any(a[:, 1] != top[0]), name  # the plain robot varies
+            else:
+                np.testing.assert_array_equal(a, b, err_msg=name)
+    assert training_flags(env) == PROMPT_ROBOT
+    assert training_flags(cogail_envs.make_env("fetchq")) == 0

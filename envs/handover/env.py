@@ -132,7 +132,7 @@ class Handover(CollabEnv):
         self._frames = mc.FrameRenderer(self.mj_model)
 
     # the observation layout and the team's pose ranges (part of the version fingerprint of generated data)
-    spec_tag = "obs57-object-frame-poses3"
+    spec_tag = "obs57-object-frame-poses3-prompt"
     object_frame_dims = tuple(range(35, 57))
     orientation_dims = (*range(3, 9), *range(12, 18), *range(24, 30))  # the TCPs' and the bar's 6D rotations
 

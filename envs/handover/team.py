@@ -12,7 +12,10 @@ holds still, descend, close, wait for the human to let go, retreat.
 How the robot decides: it never reads the strategy (region); WHERE it goes is the bar's actual pose (state),
 wherever the human carries it. WHEN: it starts once the human has lifted the bar and moves over the bar
 once the human holds it still at the spot (``H_HOLD``: the human's own phase, as a partner who sees the
-human has arrived), closes, and retreats once the human has let go (state).
+human has arrived), closes, and retreats once the human has let go (state). HOW FAST: each episode draws the
+robot's speed (0.5-0.9), acceleration, gain and reaction delay (4-25 steps); in the training split's episodes
+(``variations.PROMPT_ROBOT``) the robot is the most prompt of them (0.9, the top acceleration and gain, 4 steps),
+so that the learned robot does not keep the person waiting.
 
 Poses and places (the ranges a person plausibly uses; the robot grasps the bar wherever it is):
 
@@ -49,7 +52,7 @@ from .. import mjx_common as mc
 from .env import GRASP_OFF, OBJ, REGIONS_X, SPOT_Y
 from ..registry import Team
 from ..variations import (CHANGE_OF_MIND, DETOUR, NOISE, VARIATION_SALT, held_out, human_variation, pace_factor,
-                          pause_schedule, paused, slice_draw)
+                          pause_schedule, paused, prompt, slice_draw)
 
 # human phases
 H_WAIT, H_REACH, H_DESCEND, H_CLOSE, H_LIFT, H_CARRY, H_HOLD, H_RETREAT = range(8)
@@ -135,6 +138,10 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
     amax = u(ks[6], 0.06, 0.12, (2,))
     gain = u(ks[7], 0.12, 0.22, (2,))
     noise = u(jax.random.fold_in(rng, 99), 0.02, 0.08, (2,))
+    delay = jax.random.randint(ks[8], (2,), jnp.array([2, 4]), jnp.array([15, 25]))
+    fast = prompt(variation)  # the training split's robot: the top of its ranges, its shortest reaction
+    vmax, amax, gain = (jnp.where(fast, x.at[1].set(top), x) for x, top in ((vmax, 0.9), (amax, 0.12), (gain, 0.22)))
+    delay = jnp.where(fast, delay.at[1].set(4), delay)
     ts = TeamState(
         strategy=jnp.stack([strategy, strategy]),
         spot=spot,
@@ -142,7 +149,7 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
         vmax=vmax.at[0].set(jnp.minimum(vmax[0] * pace, 1.0)),
         amax=amax.at[0].multiply(pace),
         gain=gain.at[0].multiply(pace),
-        delay=jax.random.randint(ks[8], (2,), jnp.array([2, 4]), jnp.array([15, 25])),
+        delay=delay,
         lift=u(ks[9], 0.04, 0.09),
         pause=jax.random.randint(ks[10], (), 0, 12),
         release=jax.random.randint(ks[11], (), 2, 7),
@@ -357,4 +364,4 @@ def robot_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax
 
 
 TEAM = Team(init=team_init, act=team_act, variations=True, partner_can_follow=False, human_act=human_act,
-            robot_act=robot_act, held_out=True)
+            robot_act=robot_act, held_out=True, prompt_robot=True)

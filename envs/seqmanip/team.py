@@ -7,7 +7,9 @@ human holds the bar, the waiting points (ranges below), how far the drawer is pu
 acceleration limits, gains, start and reaction delays, a pause after lifting and action noise. Motions are
 proportional control with velocity and acceleration limits (bell-shaped, minimum-jerk-like speed
 profiles). Waiting phases are gated: their timer only runs while the awaited condition holds (e.g. the
-drawer is open and held), so every hand-off has a reaction delay.
+drawer is open and held), so every hand-off has a reaction delay. In the training split's episodes
+(``variations.PROMPT_ROBOT``) the robot is the most prompt of the team's draws (top speed, acceleration and gain,
+the shortest start and reaction delays), so that the learned robot does not keep the person waiting.
 
 1. human-hands-over: the human picks the bar up and carries it out to the handover spot; once the human
    has come past the middle of the table towards it (TCP y > ``CUE_Y``) the robot reacts, grasps the
@@ -69,7 +71,7 @@ from .. import mjx_common as mc
 from .env import CUE_Y, DR_DX, DRAWER_OPEN_MIN, GRASP_OFF, OBJ, OBJ_HALF, WALL_TOP
 from ..registry import Team
 from ..variations import (CHANGE_OF_MIND, DETOUR, NOISE, VARIATION_SALT, following, held_out, human_variation,
-                          pace_factor, pause_schedule, paused, slice_draw)
+                          pace_factor, pause_schedule, paused, prompt, slice_draw)
 
 (H_WAIT, H_REACH, H_DESCEND, H_CLOSE, H_LIFT,
  H_CARRY, H_OFFER, H_BACKOFF, H_TO_HANDLE, H_DESC_HANDLE, H_GRIP_HANDLE, H_PULL, H_HOLD_OPEN, H_PUSH,
@@ -204,6 +206,11 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
     decoy_n = jnp.where(v == CHANGE_OF_MIND, jax.random.randint(kv[7], (), *DECOY_STEPS), 0)
     vmax, amax, gain = u(ks[9], 0.45, 0.85, (2,)), u(ks[10], 0.06, 0.12, (2,)), u(ks[11], 0.12, 0.22, (2,))
     noise = u(ks[18], 0.02, 0.08, (2,))
+    delay = jax.random.randint(ks[12], (2,), jnp.array([2, 3]), jnp.array([15, 12]))
+    react = jax.random.randint(ks[13], (2,), 2, 10)
+    fast = prompt(variation)  # the training split's robot: the top of its ranges, its shortest reactions
+    vmax, amax, gain = (jnp.where(fast, x.at[1].set(top), x) for x, top in ((vmax, 0.85), (amax, 0.12), (gain, 0.22)))
+    delay, react = jnp.where(fast, delay.at[1].set(3), delay), jnp.where(fast, react.at[1].set(2), react)
     follows = following(variation) & (v == CHANGE_OF_MIND)
     ts = TeamState(
         strategy=jnp.stack([strategy, jnp.where(follows, 3 - strategy, strategy)]),
@@ -219,8 +226,8 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
         gain=gain.at[0].multiply(pace),
         # robot: reaction delay once its cue holds (s1 the human carrying past CUE_Y, s2 the human at
         # its waiting point)
-        delay=jax.random.randint(ks[12], (2,), jnp.array([2, 3]), jnp.array([15, 12])),
-        react=jax.random.randint(ks[13], (2,), 2, 10),
+        delay=delay,
+        react=react,
         lift=u(ks[14], 0.04, 0.09),
         pause=jax.random.randint(ks[15], (), 0, 12),
         retreat=jnp.stack([jnp.array([0.0, -0.10, 0.08]) + u(ks[16], -0.03, 0.03, (3,)),
@@ -532,4 +539,4 @@ def robot_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax
 
 
 TEAM = Team(init=team_init, act=team_act, variations=True, partner_can_follow=True, human_act=human_act,
-            robot_act=robot_act, held_out=True)
+            robot_act=robot_act, held_out=True, prompt_robot=True)

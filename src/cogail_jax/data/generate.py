@@ -238,12 +238,23 @@ def run_episodes(env, keys, mix, variation: int = 0, resalt: int = 0, robot_stra
     return run_requests(env, [Request(keys, mix, variation, resalt, robot_strategy, validate)], batch)[0]
 
 
+def training_flags(env) -> int:
+    """The variation flags of the training split's episodes: ``variations.PROMPT_ROBOT`` where the task's team has
+    a prompt robot (the learned robot imitates its most prompt demonstrator), else 0."""
+    from cogail_envs import team_of
+    from cogail_envs.variations import PROMPT_ROBOT
+
+    team = team_of(env)
+    return PROMPT_ROBOT if getattr(team, "prompt_robot", False) else 0
+
+
 def generate(env, num: int, mix=None, seed: int = 0, robot_strategy: int | None = None,
-             batch: int | None = None) -> Episodes:
-    """``num`` scripted human-human episodes from generator seed ``seed`` (``robot_strategy``: tests only, see
-    ``episode_one``)."""
+             batch: int | None = None, variation: int = 0) -> Episodes:
+    """``num`` scripted human-human episodes from generator seed ``seed`` (``variation``: the team's variation id
+    and flags, e.g. ``training_flags``; ``robot_strategy``: tests only, see ``episode_one``)."""
     keys = jax.random.split(jax.random.PRNGKey(seed), num)
-    out = run_episodes(env, keys, resolve_mix(env, mix), robot_strategy=int(robot_strategy or 0), batch=batch)
+    out = run_episodes(env, keys, resolve_mix(env, mix), variation=int(variation),
+                       robot_strategy=int(robot_strategy or 0), batch=batch)
     return Episodes(**{k: out[k] for k in Episodes._fields})
 
 

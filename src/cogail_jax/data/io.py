@@ -325,7 +325,7 @@ def ensure_default_demos(env, split: str = "train", mix: str = "uniform", verbos
     seed = SPLIT_SEEDS[split]  # one generator seed per split: the splits are disjoint
     if verbose:
         print(f"making {num} {split} demonstrations for {env.name} (mixture {mix}) -> {path}", flush=True)
-    eps = demos.generate(env, num, mix=mix, seed=seed)
+    eps = demos.generate(env, num, mix=mix, seed=seed, variation=demos.training_flags(env) if split == "train" else 0)
     ok = eps.success > 0
     if not ok.all():  # keep successful demonstrations only
         eps = demos.select(eps, ok)

@@ -41,7 +41,8 @@ from cogail_envs.variations import HELD_OUT, VARIATIONS, variation_id
 
 from cogail_envs import team_of
 
-from .generate import Request, chunks, generator_batch, replay_fn, resolve_mix, run_episodes, run_requests
+from .generate import (Request, chunks, generator_batch, replay_fn, resolve_mix, run_episodes, run_requests,
+                       training_flags)
 from .io import _stored_version, data_dir, default_count, load_demos, missing, save_demos
 
 ROBUST_VERSION = 2  # bump when the variations change (cached files are regenerated)
@@ -138,12 +139,13 @@ def _attempts(num: int) -> int:
 
 class VariedSpec(NamedTuple):
     """A varied set to make: ``num`` episodes of ``variation`` from generator seed ``seed`` (``following_partner``:
-    see ``generate_varied``)."""
+    see ``generate_varied``; ``flags``: further variation flags, e.g. ``generate.training_flags``)."""
 
     variation: str
     num: int
     seed: int
     following_partner: bool = False
+    flags: int = 0
 
 
 def generate_varied_sets(env, specs: list[VariedSpec], mix="uniform", batch: int | None = None,
@@ -159,7 +161,7 @@ def generate_varied_sets(env, specs: list[VariedSpec], mix="uniform", batch: int
             if not team_of(env).partner_can_follow:
                 raise ValueError(f"{env.name}'s scripted robot has no following mode")
             vid |= FOLLOWING_PARTNER
-        vids.append(vid)
+        vids.append(vid | int(sp.flags))
     batch = generator_batch(batch)
     w = resolve_mix(env, mix)
     limit = [max_attempts or 5 * sp.num for sp in specs]
@@ -280,7 +282,8 @@ def ensure_varied_training_set(env, mix="uniform", num: int = 0, per_variation: 
     the training split's generator seeds (300 + the variation's index, disjoint from the test's and validation's):
     ``data/<task>_<mix>_train[_N]_varied<k>.hdf5``, made on first use and cached. Where the task's scripted robot
     can follow the human (its team's ``partner_can_follow``), its change-of-mind episodes have the robot start on the
-    strategy the human's first leg suggests and recover when the human turns (a demonstration of adapting)."""
+    strategy the human's first leg suggests and recover when the human turns (a demonstration of adapting); where
+    its team has a prompt robot, every episode's robot is prompt, as in the default training set."""
     import h5py
 
     from .io import ensure_default_demos
@@ -296,8 +299,8 @@ def ensure_varied_training_set(env, mix="uniform", num: int = 0, per_variation: 
     if not make:
         raise missing(path, "the training set with varied humans")
     team = load_demos(team_path, env, require_init=True)
-    specs = [VariedSpec(v, per_variation, variation_seed(v, "train"), follows and v == "change_of_mind")
-             for v in VARIATIONS]
+    specs = [VariedSpec(v, per_variation, variation_seed(v, "train"), follows and v == "change_of_mind",
+                        training_flags(env)) for v in VARIATIONS]
     parts = [team, *(eps for eps, _ in generate_varied_sets(env, specs, mix, batch))]
     if verbose:
         print(f"adding {per_variation} varied-human episodes per variation to {team_path} -> {path}", flush=True)

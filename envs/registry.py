@@ -92,7 +92,9 @@ class Task:
     the play page's colours mean, ``((css colour, label), ...)``. ``spots``: three ``State.metrics`` names, the
     x, y, z of where an episode's strategy happened (e.g. a handover), drawn for successful interpolation
     rollouts (RUN/<task>_spots.png, the paper's Fig. 4a). ``cpu_steps_per_s``: env steps per second
-    and core of a training update on a CPU, for the warning before a long CPU run (0: no warning)."""
+    and core of a training update on a CPU, for the warning before a long CPU run (0: no warning). ``train_env``:
+    env options (``env(**train_env)``) the training split's demonstrations are made with, e.g. a wider range of
+    starts; validation, test, the evaluation sets and the training rollouts use the plain env."""
 
     name: str
     env: Callable[..., Any]
@@ -107,6 +109,7 @@ class Task:
     legend: tuple = (("#f07828", "you (human)"), ("#28a0e6", "robot"))
     cpu_steps_per_s: float = 0.0
     description: str = ""
+    train_env: Mapping[str, Any] = field(default_factory=dict)
 
     def make_env(self, **kwargs):
         env = self.env(**kwargs)
@@ -114,6 +117,10 @@ class Task:
             raise UnknownTaskError(f"task {self.name!r} builds an env named {getattr(env, 'name', None)!r}: set the env "
                                    f"class's name to {self.name!r}")
         return env
+
+    def make_training_env(self, **kwargs):
+        """The env the training split's demonstrations are made in: ``make_env`` with ``train_env``'s options."""
+        return self.make_env(**{**dict(self.train_env), **kwargs})
 
     def config(self, budget: str = "paper") -> dict:
         """The task's settings under a budget: ``default_config()`` updated with ``budgets[budget]``."""

@@ -126,3 +126,49 @@ def test_prompt_robot_changes_the_robot_only(task):
                 np.testing.assert_array_equal(a, b, err_msg=name)
     assert training_flags(env) == PROMPT_ROBOT
     assert training_flags(cogail_envs.make_env("fetchq")) == 0
+
+
+TRAIN_ENV_TASKS = [t for t in ("handover", "seqmanip") if get_task(t).train_env]
+
+
+@pytest.mark.parametrize("task", TRAIN_ENV_TASKS)
+def test_training_env_changes_the_robot_start_only(task, tmp_path, monkeypatch):
+    """The training split's env (the task's ``train_env``) draws the robot gripper's start yaw and height from its
+    wider ranges and every other part of the start as the plain env does from the same key; ``reset_from`` puts the
+    gripper there (joint and command); only the training split is made in it, under its own dataset version."""
+    from cogail_jax.data import generate, io
+
+    env = cogail_envs.make_env(task)
+    tenv = generate.training_env(env)
+    opts = get_task(task).train_env
+    keys = jax.random.split(jax.random.PRNGKey(0), 4000)
+    plain, wide = (np.asarray(jax.vmap(e.sample_init)(keys)) for e in (env, tenv))
+    np.testing.assert_array_equal(plain[:, :8], wide[:, :8])  # the object's and the human's start, the robot's x, y
+    assert np.abs(plain[:, 9]).max() == 0 and np.abs(plain[:, 8]).max() <= 0.03
+    yaw, z = np.abs(wide[:, 9]).max(), np.abs(wide[:, 8]).max()
+    assert 0.95 * opts["robot_start_yaw"] < yaw <= opts["robot_start_yaw"]
+    assert 0.95 * opts["robot_start_z"] < z <= opts["robot_start_z"]
+    assert tenv.version != env.version and generate.training_env(tenv).version == tenv.version
+    x = plain[0].copy()
+    x[8], x[9] = -0.07, 0.4
+    d = jax.jit(env.reset_from)(jnp.asarray(x)).pipeline_state
+    r = env.robot
+    np.testing.assert_allclose(np.asarray(d.qpos)[[r.qpos[2], r.qpos[5]]], [-0.07, 0.4], atol=1e-6)
+    np.testing.assert_allclose(np.asarray(d.ctrl)[[r.act + 2, r.act + 5]], [-0.07, 0.4], atol=1e-6)
+
+    made = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake(env_, num, **kw):
+        made[num] = env_.version
+        raise Stop
+
+    monkeypatch.setenv("COGAIL_DATA", str(tmp_path))
+    monkeypatch.setattr(generate, "generate", fake)
+    for split, num in (("train", 3), ("validation", 0), ("test", 0)):
+        with pytest.raises(Stop):
+            io.ensure_default_demos(env, split, num=num, verbose=False)
+        assert made.pop(num if num else io.default_count(task, split)) == (tenv.version if split == "train"
+                                                                           else env.version), split

@@ -11,6 +11,7 @@ TASK = Task(
     legend=(("#2f6fd6", "you (human, near camera)"), ("#d64040", "robot")),
     # Co-GAIL's update on an unloaded CPU, env steps/s per core (`cogail bench handover --sizes 64 --unroll 94`)
     cpu_steps_per_s=1500.0,
+    train_env=config.TRAIN_ENV,
     description="HR-Handover: a human gripper fetches a bar and hands it to the robot (left / middle / right)",
 )
 

@@ -74,8 +74,10 @@ SPOT_Y = (-0.06, 0.05)
 RELEASE_AFTER = 3          # robot-grasp steps before the human's gripper auto-opens
 SUCCESS_DIST = 0.10
 LIFTED_Z = 0.05
-# init vector: obj dx, obj dy, obj yaw, human start (3, base frame), robot start (3, base frame)
-INIT_LO = np.array([-0.05, -0.015, -0.15, -0.03, -0.03, -0.03, -0.03, -0.03, -0.03], np.float32)
+# init vector: obj dx, obj dy, obj yaw, human start (3, base frame), robot start (3, base frame), robot start yaw.
+# The robot's start: within 3 cm of its home pose, not turned; the constructor's ``robot_start_yaw`` /
+# ``robot_start_z`` widen its yaw and height (the task's training split is made so: ``TASK.train_env``).
+INIT_LO = np.array([-0.05, -0.015, -0.15, -0.03, -0.03, -0.03, -0.03, -0.03, -0.03, 0.0], np.float32)
 INIT_HI = -INIT_LO
 
 HUMAN = mc.GripperSpec("human", HUMAN_BASE, 0.0, (-0.35, -0.05, -0.234, -0.6, -0.6, -1.6),
@@ -110,14 +112,18 @@ class Handover(CollabEnv):
     human_action_size = 7
     robot_action_size = 7
     max_episode_steps = 300
-    init_size = 9
+    init_size = 10
     strategy_names = ("left", "middle", "right")
 
     def __init__(self, max_episode_steps: int = 300, auto_release: bool = True,
                  iterations: int = mc.ITERATIONS, ls_iterations: int = mc.LS_ITERATIONS,
                  n_substeps: int = mc.N_SUBSTEPS, finger_condim: int = mc.FINGER_CONDIM,
-                 timestep: float = mc.TIMESTEP):
+                 timestep: float = mc.TIMESTEP, robot_start_yaw: float = 0.0, robot_start_z: float = 0.03):
         self.max_episode_steps = int(max_episode_steps)
+        self.init_lo = INIT_LO.copy()
+        self.init_lo[8], self.init_lo[9] = -float(robot_start_z), -float(robot_start_yaw)
+        if (float(robot_start_yaw), float(robot_start_z)) != (0.0, 0.03):  # another start: another dataset version
+            self.spec_tag = f"{type(self).spec_tag}-robot-start-{float(robot_start_yaw):g}-{float(robot_start_z):g}"
         self.auto_release = bool(auto_release)
         self.n_substeps = int(n_substeps)
         self.timestep = float(timestep)
@@ -132,7 +138,7 @@ class Handover(CollabEnv):
         self._frames = mc.FrameRenderer(self.mj_model)
 
     # the observation layout and the team's pose ranges (part of the version fingerprint of generated data)
-    spec_tag = "obs57-object-frame-poses3-prompt"
+    spec_tag = "obs57-object-frame-poses3-prompt-start10"
     object_frame_dims = tuple(range(35, 57))
     orientation_dims = (*range(3, 9), *range(12, 18), *range(24, 30))  # the TCPs' and the bar's 6D rotations
 
@@ -146,7 +152,7 @@ class Handover(CollabEnv):
 
     # ------------------------------------------------------------------ reset
     def sample_init(self, rng: jax.Array) -> jax.Array:
-        return jax.random.uniform(rng, (self.init_size,), minval=INIT_LO, maxval=INIT_HI)
+        return jax.random.uniform(rng, (self.init_size,), minval=self.init_lo, maxval=-self.init_lo)
 
     def reset_from(self, init: jax.Array) -> State:
         init = jnp.asarray(init, jnp.float32)
@@ -155,6 +161,7 @@ class Handover(CollabEnv):
         h, r = self.human, self.robot
         open_q = mc.MAX_GAP / 2
         qpos = qpos.at[jnp.array(h.qpos[:3])].set(init[3:6]).at[jnp.array(r.qpos[:3])].set(init[6:9])
+        qpos = qpos.at[r.qpos[5]].set(init[9])
         qpos = qpos.at[jnp.array(h.finger_qpos + r.finger_qpos)].set(open_q)
         yaw = init[2]
         obj = jnp.array([OBJ_START[0] + init[0], OBJ_START[1] + init[1], OBJ_HALF[2],

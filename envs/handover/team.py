@@ -16,6 +16,10 @@ human has arrived), closes, and retreats once the human has let go (state). HOW 
 robot's speed (0.5-0.9), acceleration, gain and reaction delay (4-25 steps); in the training split's episodes
 (``variations.PROMPT_ROBOT``) the robot is the most prompt of them (0.9, the top acceleration and gain, 4 steps),
 so that the learned robot does not keep the person waiting.
+The training split is also made in the task's training env (``TASK.train_env``): the robot's gripper starts turned
+by up to +-0.5 rad and up to 8 cm above or below its home height (everywhere else within 3 cm of home, not turned),
+so that the demonstrations show it coming to the bar from further, higher and lower, and more turned than the bar's
+pose alone asks for.
 
 Poses and places (the ranges a person plausibly uses; the robot grasps the bar wherever it is):
 

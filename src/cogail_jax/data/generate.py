@@ -248,6 +248,17 @@ def training_flags(env) -> int:
     return PROMPT_ROBOT if getattr(team, "prompt_robot", False) else 0
 
 
+def training_env(env):
+    """The env the training split's demonstrations are made in: the task's ``train_env`` options (e.g. a robot that
+    starts from more poses) at ``env``'s time limit; ``env`` itself where the task has none."""
+    from cogail_envs import get_task
+
+    task = get_task(env.name)
+    if not task.train_env:
+        return env
+    return task.make_training_env(max_episode_steps=env.max_episode_steps)
+
+
 def generate(env, num: int, mix=None, seed: int = 0, robot_strategy: int | None = None,
              batch: int | None = None, variation: int = 0) -> Episodes:
     """``num`` scripted human-human episodes from generator seed ``seed`` (``variation``: the team's variation id

@@ -310,6 +310,8 @@ def ensure_default_demos(env, split: str = "train", mix: str = "uniform", verbos
     path = default_demo_path(env.name, split, mix, num)
     split = split_name(split)
     num = num or default_count(env.name, split)
+    if split == "train":  # the task's training env (e.g. a robot that starts from more poses)
+        env = demos.training_env(env)
     if path.exists():
         version, generated = _stored_attrs(path)
         if version == env.version and generated == num:

@@ -42,7 +42,7 @@ from cogail_envs.variations import HELD_OUT, VARIATIONS, variation_id
 from cogail_envs import team_of
 
 from .generate import (Request, chunks, generator_batch, replay_fn, resolve_mix, run_episodes, run_requests,
-                       training_flags)
+                       training_flags, training_env)
 from .io import _stored_version, data_dir, default_count, load_demos, missing, save_demos
 
 ROBUST_VERSION = 2  # bump when the variations change (cached files are regenerated)
@@ -288,6 +288,7 @@ def ensure_varied_training_set(env, mix="uniform", num: int = 0, per_variation: 
 
     from .io import ensure_default_demos
 
+    env = training_env(env)  # the task's training env (e.g. a robot that starts from more poses)
     team_path = ensure_default_demos(env, "train", mix, verbose=verbose, num=num, make=make)
     path = varied_training_path(team_path, per_variation)
     follows = bool(team_of(env).partner_can_follow)

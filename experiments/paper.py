@@ -167,10 +167,15 @@ def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1,
     resume = saved.exists() and TrainConfig.load(saved) == cfg  # the same resolved config: resume / reuse
     if saved.exists() and not resume:
         raise SystemExit(f"{run} holds a run of another config: remove it")
-    kept = {}
-    train_loop.train_run(cfg, run, resume=resume, progress=False, keep=kept)
+    kept, sets = {}, validation_robustness_sets(task, mix)
+    # as `cogail train --eval`: the evaluation, co-play included, is made ready while training runs (for the
+    # default evaluation of every checkpoint in the default batches; any other is prepared by eval_run itself)
+    prep = (eval_runner.EvalPrep(run, robustness=True, extra_sets=sets, coplay=True)
+            if every == 1 and ckpt_batch is None else None)
+    train_loop.train_run(cfg, run, resume=resume, progress=False, keep=kept,
+                         on_compiled=prep.start if prep else None)
     res = eval_runner.eval_run(run, progress=False, every=every, robustness=True, ckpt_batch=ckpt_batch, memory=kept,
-                           extra_sets=validation_robustness_sets(task, mix))
+                               extra_sets=sets, prepared=prep, coplay=True)
     info = json.loads((run / "run_info.json").read_text()) if (run / "run_info.json").is_file() else {}
     return {**{k: res[k] for k in KEEP if k in res}, "config_hash": config_hash(cfg), "run": str(run),
             "eval_every": every, "commit": info.get("git_commit"), "dirty": info.get("git_dirty"), "sets": extra}

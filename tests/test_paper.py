@@ -414,3 +414,32 @@ def test_sweep_merges_each_jobs_results_as_it_ends(tmp_path, monkeypatch):
     assert set(merged) == {"fetchq/cogail/uniform", "fetchq/diayn/uniform"}
     assert "| cogail | 55.0 +- 1.0 | 60.0 +- 2.0 |" in (out / "table1_replay.md").read_text()
     assert (out / "jobs" / "fetchq-ma_gail-uniform.log").exists()
+
+
+def test_run_one_evaluates_co_play_prepared_while_training(tmp_path, monkeypatch):
+    """A grid row is evaluated as `cogail train --eval` evaluates: co-play included (the co-play table is filled
+    from the grid), prepared while training runs, and paper.json keeps it."""
+    from cogail_jax.apps import eval_runner, train_loop
+    from cogail_jax.data import sets as data_sets
+
+    seen = {}
+    monkeypatch.setattr(data_sets, "make_datasets", lambda cfg: {})
+    monkeypatch.setattr(paper, "validation_robustness_sets", lambda task, mix: {"val-robust-slow": "x.hdf5"})
+
+    def fake_train(cfg, run, **kw):
+        seen["train"] = kw
+        Path(run).mkdir(parents=True, exist_ok=True)
+        return Path(run)
+
+    def fake_eval(run, **kw):
+        seen["eval"] = kw
+        return {**_res(0.5, 0.6), "coplay": _coplay(0.9, 0.6)} if kw.get("coplay") else _res(0.5, 0.6)
+
+    monkeypatch.setattr(train_loop, "train_run", fake_train)
+    monkeypatch.setattr(eval_runner, "eval_run", fake_eval)
+    row = paper.run_one("fetchq", "cogail", "uniform", [300], tmp_path, {})
+    assert "coplay" in row and seen["eval"]["coplay"] is True
+    prep = seen["eval"]["prepared"]
+    assert isinstance(prep, eval_runner.EvalPrep) and prep.coplay is not None
+    assert seen["train"]["on_compiled"] == prep.start
+    assert seen["eval"]["extra_sets"] == {"val-robust-slow": "x.hdf5"}

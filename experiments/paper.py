@@ -486,6 +486,33 @@ def coplay_rows(results: dict, tasks, methods) -> list[str]:
     return lines if len(lines) > 2 else []
 
 
+def coplay_table(results: dict, tasks, methods) -> list[str]:
+    """The README's co-play table, beside Tables 1 and 2: a row per method (and the scripted robot as the reference),
+    per task the selected checkpoint's co-play success (%, mean +- std over seeds) with the task's scripted human and
+    with the BC proxy of the test humans; -: not measured."""
+    def cp(t, m):
+        return (results.get(f"{t}/{m}/uniform") or {}).get("coplay") or {}
+
+    tasks = [t for t in tasks if any(cp(t, m) for m in methods)]
+    if not tasks:
+        return []
+    lines = ["| robot | " + " | ".join(f"{t}: scripted human | {t}: BC proxy" for t in tasks) + " |",
+             "| --- | " + " | ".join("---: | ---:" for _ in tasks) + " |"]
+    for m in methods:
+        if not any(cp(t, m) for t in tasks):
+            continue
+        cells = []
+        for t in tasks:
+            got = ((cp(t, m).get("learned") or {}).get("selected") or {}).get("success") or {}
+            cells += [fmt(got.get("scripted")), fmt(got.get("proxy"))]
+        lines.append(f"| {m} | " + " | ".join(cells) + " |")
+    refs = [next((cp(t, m)["scripted_robot"] for m in methods if cp(t, m).get("scripted_robot")), {}) for t in tasks]
+    lines.append("| scripted robot (reference) | " + " | ".join(
+        f"{100 * r['scripted']:.1f} | " + (f"{100 * r['proxy']:.1f}" if "proxy" in r else "-") if "scripted" in r
+        else "- | -" for r in refs) + " |")
+    return lines
+
+
 def _best(results: dict, task: str, methods, column: str):
     """(Co-GAIL's selected mean, the best other method and its mean) of ``column`` on ``task``, or None."""
     def mean(m):
@@ -681,10 +708,10 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
                       *mine]
         if coplay:
             rel = Path(os.path.relpath(out / "coplay.md", readme.resolve().parent)).as_posix()
-            mine = coplay[:2] + [r for r in coplay[2:] if r.split("|")[2].strip() in ("cogail",
-                                                                                   "scripted robot (reference)")]
-            block += ["", "Closed-loop co-play: Co-GAIL's robot with reacting humans, beside the scripted robot (selected "
-                      f"checkpoint, %; every method: [{rel}]({rel})):", "", *mine]
+            block += ["", "Closed-loop co-play: each method's robot with a reacting human, the task's scripted human and a "
+                      "BC proxy of the test humans, beside the scripted robot (selected checkpoint, %; with each "
+                      f"variation of the scripted human: [{rel}]({rel})):", "",
+                      *coplay_table(results, tasks, methods)]
         if claims:
             block += ["", "Where the grid stands on the paper's claims:", "", *claims]
         if stab:

@@ -185,8 +185,8 @@ def _coplay(scripted, proxy, ref_proxy=0.8):
 
 def test_claims_and_coplay_are_generated_from_the_grid(tmp_path):
     """The co-play table (every method, and the scripted robot as the reference) and the claim-by-claim summary
-    come from paper.json alone, each claim beside the paper's figures; the README block carries Co-GAIL's co-play
-    rows and the claims."""
+    come from paper.json alone, each claim beside the paper's figures; the README block carries every method's co-play
+    (scripted human, BC proxy) and the claims."""
     results = {"fetchq/cogail/uniform": {**_res(0.8, 0.8, 0.9, 0.9), "method": "cogail", "coplay": _coplay(0.9, 0.6)},
                "fetchq/ma_gail/uniform": {**_res(0.7, 0.7, 0.95, 0.95), "method": "ma_gail",
                                           "coplay": _coplay(0.8, 0.4)},
@@ -208,7 +208,10 @@ def test_claims_and_coplay_are_generated_from_the_grid(tmp_path):
     assert "D1: Co-GAIL's rarest strategy 10 %, the lowest other ma_gail 0 %" in claims
     assert "fetchq 0.75" in claims
     text = readme.read_text()
-    assert "| fetchq | cogail | 90.0 |" in text and "| fetchq | ma_gail | 80.0 |" not in text
+    assert "| robot | fetchq: scripted human | fetchq: BC proxy |" in text  # every method beside Tables 1 and 2
+    assert "| cogail | 90.0 +- 1.0 | 60.0 +- 1.0 |" in text and "| ma_gail | 80.0 +- 1.0 | 40.0 +- 1.0 |" in text
+    assert "| bc_single |" not in text.split("Closed-loop co-play")[1].split("\n\n")[1]  # not measured: no row
+    assert "| scripted robot (reference) | 100.0 | 80.0 |" in text
     assert "Where the grid stands on the paper's claims" in text and "*Co-GAIL replays best*" in text
 
 

@@ -10,13 +10,13 @@ BUDGET ?= paper
 RUN ?= runs/$(TASK)-$(METHOD)-$(BUDGET)
 EXTRA ?=
 
-.PHONY: install browser train eval test demos video bench first-run clean help paper paper-check
+.PHONY: install browser train eval test demos video bench first-run clean help paper paper-check paper-compare
 
 help:
 	@echo "make train [TASK=fetchq|handover|seqmanip] [METHOD=cogail|ma_infogail|ma_gail] [SEEDS=300,400,500] [BUDGET=paper|quick|2x] [RUN=dir]"
 	@echo "make eval RUN=dir | make test | make demos TASK=... (the run's datasets) | make video RUN=dir | make bench"
 	@echo "make first-run [TASKS=fetchq,handover,seqmanip] (cold, warm and new-config make train, timed)"
-	@echo "make paper [TASKS=fetchq,handover,seqmanip] [METHODS=...] | make paper-check | make install [CPU=1] [DRY_RUN=1]"
+	@echo "make paper [TASKS=fetchq,handover,seqmanip] [METHODS=...] | make paper-check | make paper-compare | make install [CPU=1] [DRY_RUN=1]"
 
 $(BIN)/.installed: pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -87,6 +87,10 @@ paper: install
 # Which rows of the shipped tables were not trained from this checkout's code with the current settings.
 paper-check: install
 	$(BIN)/python experiments/paper.py --check --out docs/results/paper
+
+# make paper's rows (results/paper) against the shipped tables', figure by figure to the last digit
+paper-compare: install
+	$(BIN)/python experiments/paper.py --out results/paper --compare docs/results/paper
 
 # The throughput table of TASK, then the seconds per phase (start, demos, bc, compile, train, eval, write) of every
 # run under runs/ that has a speed.json (e.g. the `make train` runs of each task).

@@ -181,6 +181,33 @@ def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1,
             "eval_every": every, "commit": info.get("git_commit"), "dirty": info.get("git_dirty"), "sets": extra}
 
 
+def row_digits(res: dict) -> dict[str, str]:
+    """What the tables show of one row, as printed: the selected checkpoint, replay and interpolation (selected and
+    paper protocol, mean +- std over seeds) and co-play with each partner (selected checkpoint)."""
+    def f(d):
+        return f"{100 * d['mean']:.1f} +- {100 * d['std']:.1f}" if d else "-"
+
+    sel, pp = res.get("selected") or {}, res.get("paper_protocol") or {}
+    out = {"selected checkpoint": str(sel.get("checkpoint", "-"))}
+    for col in ("replay", "interpolation"):
+        out[f"{col}: selected"], out[f"{col}: paper protocol"] = f(sel.get(col)), f(pp.get(col))
+    got = (((res.get("coplay") or {}).get("learned") or {}).get("selected") or {}).get("success") or {}
+    out.update({f"co-play with {p}": f(v) for p, v in sorted(got.items())})
+    return out
+
+
+def compare(results: dict, ref: dict) -> tuple[list[str], list[str]]:
+    """The rows of ``results`` also in ``ref`` (e.g. docs/results/paper/paper.json): (keys whose printed figures are
+    the same to the last digit, one line per figure that differs, 'key: what: here vs ref')."""
+    same, diffs = [], []
+    for key in sorted(set(results) & set(ref)):
+        a, b = row_digits(results[key]), row_digits(ref[key])
+        bad = [f"{key}: {k}: {a.get(k, '-')} vs {b.get(k, '-')}" for k in sorted(set(a) | set(b))
+               if a.get(k, "-") != b.get(k, "-")]
+        (diffs.extend(bad) if bad else same.append(key))
+    return same, diffs
+
+
 # ----------------------------------------------------------------------------------------------- sweeps
 def gpu_count(env=None) -> int:
     """The NVIDIA GPUs this process may use: CUDA_VISIBLE_DEVICES's entries where it is set, else ``nvidia-smi
@@ -781,6 +808,10 @@ def main(argv=None) -> int:
     p.add_argument("--check", action="store_true",
                    help="train nothing: list the rows of <out>/paper.json that were not trained from this checkout's "
                         "code with the current settings (exit status 1 if any)")
+    p.add_argument("--compare", default=None, metavar="DIR",
+                   help="train nothing: compare the rows of <out>/paper.json with DIR/paper.json's (e.g. the shipped "
+                        "docs/results/paper after `make paper TASKS=... METHODS=...`), figure by figure as the tables "
+                        "print them (exit status 1 if any differs)")
     p.add_argument("--readme", default=None, metavar="FILE",
                    help=f"also write the tables into FILE between {BEGIN} and {END}")
     p.add_argument("--gpus", default="all", metavar="N|all",
@@ -805,6 +836,19 @@ def main(argv=None) -> int:
     tasks, methods = a.tasks.split(","), a.methods.split(",")
     seeds = [int(s) for s in a.seeds.split(",")]
     results = json.loads((out / "paper.json").read_text()) if (out / "paper.json").exists() else {}
+    if a.compare:
+        ref_file = Path(a.compare) / "paper.json"
+        for f in (out / "paper.json", ref_file):
+            if not f.is_file():
+                raise SystemExit(f"{f} does not exist: give the --out folder of a grid and, to --compare, another's")
+        same, diffs = compare(results, json.loads(ref_file.read_text()))
+        for key in same:
+            print(f"same to the last digit: {key}")
+        for line in diffs:
+            print(f"differs: {line}")
+        if not same and not diffs:
+            print(f"no row of {out / 'paper.json'} is in {ref_file}")
+        return 1 if diffs or not same else 0
     if a.check:
         if not (out / "paper.json").is_file():
             raise SystemExit(f"{out / 'paper.json'} does not exist: give the --out folder of a grid (`make paper`'s "

@@ -446,3 +446,23 @@ def test_run_one_evaluates_co_play_prepared_while_training(tmp_path, monkeypatch
     assert isinstance(prep, eval_runner.EvalPrep) and prep.coplay is not None
     assert seen["train"]["on_compiled"] == prep.start
     assert seen["eval"]["extra_sets"] == {"val-robust-slow": "x.hdf5"}
+
+
+def test_compare_reports_each_figure_that_differs_from_a_reference_grid(tmp_path, capsys):
+    """`--compare REF`: a re-run row is checked against the shipped one figure by figure as the tables print them
+    (co-play included); a difference in the last digit is reported and fails, rows only in one grid are ignored."""
+    row = {**_res(0.911, 0.917, 0.817, 0.88), "coplay": _coplay(0.98, 0.615)}
+    ref, mine = tmp_path / "ref", tmp_path / "mine"
+    ref.mkdir(), mine.mkdir()
+    (ref / "paper.json").write_text(json.dumps({"handover/cogail/uniform": row, "handover/ma_gail/uniform": row,
+                                                "seqmanip/cogail/uniform": row}))
+    other = json.loads(json.dumps(row))
+    other["coplay"]["learned"]["selected"]["success"]["proxy"]["mean"] = 0.616  # 61.6 against 61.5
+    (mine / "paper.json").write_text(json.dumps({"handover/cogail/uniform": row, "handover/ma_gail/uniform": other}))
+    assert paper.main(["--out", str(mine), "--compare", str(ref)]) == 1
+    out = capsys.readouterr().out
+    assert "same to the last digit: handover/cogail/uniform" in out
+    assert "differs: handover/ma_gail/uniform: co-play with proxy: 61.6 +- 1.0 vs 61.5 +- 1.0" in out
+    assert "seqmanip" not in out
+    (mine / "paper.json").write_text(json.dumps({"handover/cogail/uniform": row}))
+    assert paper.main(["--out", str(mine), "--compare", str(ref)]) == 0

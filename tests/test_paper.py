@@ -464,5 +464,10 @@ def test_compare_reports_each_figure_that_differs_from_a_reference_grid(tmp_path
     assert "same to the last digit: handover/cogail/uniform" in out
     assert "differs: handover/ma_gail/uniform: co-play with proxy: 61.6 +- 1.0 vs 61.5 +- 1.0" in out
     assert "seqmanip" not in out
-    (mine / "paper.json").write_text(json.dumps({"handover/cogail/uniform": row}))
+    no_coplay = {k: v for k, v in row.items() if k != "coplay"}  # a row evaluated without co-play
+    (mine / "paper.json").write_text(json.dumps({"handover/cogail/uniform": row, "seqmanip/cogail/uniform": no_coplay}))
     assert paper.main(["--out", str(mine), "--compare", str(ref)]) == 0
+    no_coplay["selected"] = {**no_coplay["selected"], "checkpoint": 50}
+    (mine / "paper.json").write_text(json.dumps({"seqmanip/cogail/uniform": no_coplay}))
+    assert paper.main(["--out", str(mine), "--compare", str(ref)]) == 1
+    assert "seqmanip/cogail/uniform: selected checkpoint: 50 vs 40" in capsys.readouterr().out

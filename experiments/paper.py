@@ -184,15 +184,12 @@ def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1,
 def row_digits(res: dict) -> dict[str, str]:
     """What the tables show of one row, as printed: the selected checkpoint, replay and interpolation (selected and
     paper protocol, mean +- std over seeds) and co-play with each partner (selected checkpoint)."""
-    def f(d):
-        return f"{100 * d['mean']:.1f} +- {100 * d['std']:.1f}" if d else "-"
-
     sel, pp = res.get("selected") or {}, res.get("paper_protocol") or {}
     out = {"selected checkpoint": str(sel.get("checkpoint", "-"))}
     for col in ("replay", "interpolation"):
-        out[f"{col}: selected"], out[f"{col}: paper protocol"] = f(sel.get(col)), f(pp.get(col))
+        out[f"{col}: selected"], out[f"{col}: paper protocol"] = fmt(sel.get(col)), fmt(pp.get(col))
     got = (((res.get("coplay") or {}).get("learned") or {}).get("selected") or {}).get("success") or {}
-    out.update({f"co-play with {p}": f(v) for p, v in sorted(got.items())})
+    out.update({f"co-play with {p}": fmt(v) for p, v in sorted(got.items())})
     return out
 
 

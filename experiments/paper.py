@@ -307,7 +307,7 @@ def figures(res: dict | None, column: str) -> tuple[str, str]:
 
 
 def _paper(p) -> str:
-    return f"{p[0]} +- {p[1]}" if p else "-"
+    return f"{p[0]} +- {p[1]}" if p else "not reported"
 
 
 def table(results: dict, tasks, methods, column: str, paper: dict) -> list[str]:
@@ -324,7 +324,7 @@ def table(results: dict, tasks, methods, column: str, paper: dict) -> list[str]:
 PROTOCOL_NOTE = ("Success rates in %, mean +- std over seeds, on the test split. *selected*: the checkpoint with "
                  "the best mean validation replay success, reported on test (nothing chosen on test). *paper "
                  "protocol*: as the paper reports, the checkpoint with the best mean over seeds on test, per column. "
-                 "*paper*: the paper's figure. -: not measured.")
+                 "*paper*: the paper's figure (*not reported*: the paper gives none). -: not measured.")
 
 
 def fig3_rows(results: dict, methods) -> list[str]:

@@ -1,6 +1,7 @@
 """experiments/paper.py assembles the paper's tables from run results (no training here)."""
 import importlib.util
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -33,14 +34,16 @@ def _res(sel_r, pp_r, sel_i=0.1, pp_i=0.2, dist=(0.25, 0.25, 0.25, 0.25), pp_dis
 def test_tables_give_selected_paper_protocol_and_paper(tmp_path):
     results = {"fetchq/cogail/uniform": _res(0.55, 0.6), "fetchq/ma_gail/uniform": _res(0.3, 0.35, 0.2, 0.25),
                "fetchq/cogail/D1": _res(0.5, 0.5, dist=(0.1, 0.1, 0.4, 0.4)), "fetchq/cogail/D2": _res(0.5, 0.5),
-               "fetchq/diayn/uniform": {"replay_success": _s(0.9)}}  # made before the protocol: no figures
-    paper.tables(results, ["fetchq"], ["cogail", "ma_gail", "diayn"], tmp_path)
+               "fetchq/diayn/uniform": {"replay_success": _s(0.9)},  # made before the protocol: no figures
+               "fetchq/bc_gail/uniform": _res(0.4, 0.45, 0.3, 0.35)}
+    paper.tables(results, ["fetchq"], ["cogail", "ma_gail", "diayn", "bc_gail"], tmp_path)
     t1 = (tmp_path / "table1_replay.md").read_text()
     assert "| method | fetchq: selected | fetchq: paper protocol | fetchq: paper |" in t1
     assert "| cogail | 55.0 +- 1.0 | 60.0 +- 2.0 | 53.3 +- 4.4 |" in t1
     assert "| diayn | - | - | 44.4 +- 8.4 |" in t1
     t2 = (tmp_path / "table2_interpolation.md").read_text()
     assert "| ma_gail | 20.0 +- 1.0 | 25.0 +- 2.0 | 78.5 +- 7.2 |" in t2
+    assert "| bc_gail | 30.0 +- 1.0 | 35.0 +- 2.0 | not reported |" in t2  # the paper gives no figure
     f3 = (tmp_path / "fig3_strategies.md").read_text()
     assert "| cogail | D1 | 10 / 10 / 40 / 40 | 40 / 20 / 20 / 20 | 17 / 17 / 33 / 33 |" in f3
     assert (tmp_path / "fig3_strategies.png").exists() and (tmp_path / "paper.json").exists()
@@ -220,7 +223,7 @@ def test_bc_single_has_no_interpolation_figure(tmp_path):
                "fetchq/cogail/uniform": {**_res(0.55, 0.6), "method": "cogail"}}
     paper.tables(results, ["fetchq"], ["bc_single", "cogail"], tmp_path)
     assert "| bc_single | 40.0 +- 1.0 | 45.0 +- 2.0 | 21.1 +- 1.9 |" in (tmp_path / "table1_replay.md").read_text()
-    assert "| bc_single | n/a | n/a | - |" in (tmp_path / "table2_interpolation.md").read_text()
+    assert "| bc_single | n/a | n/a | not reported |" in (tmp_path / "table2_interpolation.md").read_text()
     assert "| fetchq/bc_single/uniform | 40.0 +- 1.0 | 40.0 +- 1.0 | n/a | n/a |" in \
         (tmp_path / "stability.md").read_text()
 
@@ -471,3 +474,20 @@ def test_compare_reports_each_figure_that_differs_from_a_reference_grid(tmp_path
     (mine / "paper.json").write_text(json.dumps({"seqmanip/cogail/uniform": no_coplay}))
     assert paper.main(["--out", str(mine), "--compare", str(ref)]) == 1
     assert "seqmanip/cogail/uniform: selected checkpoint: 50 vs 40" in capsys.readouterr().out
+
+
+def test_the_readme_tables_are_generated_from_the_shipped_grid(tmp_path):
+    """The README's results block is exactly what paper.py writes from docs/results/paper/paper.json."""
+    root = Path(__file__).resolve().parents[1]
+    out = tmp_path / "docs" / "results" / "paper"
+    out.mkdir(parents=True)
+    shutil.copy(root / "docs/results/paper/paper.json", out / "paper.json")
+    shipped = (root / "README.md").read_text()
+    readme = tmp_path / "README.md"
+    readme.write_text(shipped)
+    assert paper.main(["--out", str(out), "--tables-only", "--readme", str(readme)]) == 0
+    assert readme.read_text() == shipped, "regenerate it: python experiments/paper.py --out docs/results/paper " \
+                                          "--tables-only --readme README.md"
+    rows = [line for line in shipped.split(paper.BEGIN)[1].split(paper.END)[0].splitlines()
+            if line.startswith(tuple(f"| {m} |" for m in paper.ORDER))]  # Tables 1, 2 and the co-play table
+    assert len(rows) == 3 * len(paper.ORDER) and not [r for r in rows if "| - |" in r or r.endswith("| - |")]

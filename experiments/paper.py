@@ -27,8 +27,8 @@ share the grid; ``--merge`` then joins their ``paper.json``.
 
 Each run's entry records the commit it was trained at (and whether the code had uncommitted changes) and the
 ``--set`` overrides it was resolved with. A row is *stale* when it was not trained from this checkout's code (another
-commit whose ``src/``, ``envs/`` or ``pyproject.toml`` differ from this one's, or uncommitted changes) or when its
-config is not what the current settings resolve to; ``--check`` lists the stale rows (exit status 1 if any), and a
+commit whose ``src/``, ``envs/`` or ``pyproject.toml`` differ from this one's, other built-in tasks' packages
+``envs/<task>/`` aside, or uncommitted changes) or when its config is not what the current settings resolve to; ``--check`` lists the stale rows (exit status 1 if any), and a
 grid run trains stale rows again instead of reusing them.
 
 GPU execution is deterministic (XLA_FLAGS ``--xla_gpu_deterministic_ops=true``) unless ``--nondeterministic``.
@@ -105,6 +105,18 @@ def validation_robustness_sets(task, mix) -> dict:
 CODE = (":/src", ":/envs", ":/pyproject.toml")  # what a run's figures depend on (git pathspecs from the top)
 
 
+def task_code(task: str | None = None) -> tuple[str, ...]:
+    """What the figures of ``task``'s rows depend on: ``CODE`` without the other built-in tasks' packages
+    (``envs/<name>/``; nothing outside a task's package names a task, so editing one task, or adding your own,
+    leaves the other tasks' rows fresh). ``None``: all of ``CODE``."""
+    if task is None:
+        return CODE
+    import cogail_envs
+
+    return CODE + tuple(f":(top,exclude)envs/{name}" for name in cogail_envs.builtin_task_names()
+                        if name != task and (ROOT.parent / "envs" / name).is_dir())
+
+
 def _git(*args) -> subprocess.CompletedProcess | None:
     try:
         return subprocess.run(["git", *args], capture_output=True, text=True, timeout=30, cwd=ROOT)
@@ -118,11 +130,12 @@ def head_commit() -> str | None:
     return r.stdout.strip() if r is not None and r.returncode == 0 else None
 
 
-def code_changed(commit: str, head: str) -> bool | None:
-    """Whether the code differs between ``commit`` and ``head`` (None: git cannot tell, e.g. an unknown commit)."""
+def code_changed(commit: str, head: str, task: str | None = None) -> bool | None:
+    """Whether the code ``task``'s figures depend on (``task_code``) differs between ``commit`` and ``head`` (None:
+    git cannot tell, e.g. an unknown commit)."""
     if commit == head:
         return False
-    r = _git("diff", "--quiet", commit, head, "--", *CODE)
+    r = _git("diff", "--quiet", commit, head, "--", *task_code(task))
     return None if r is None or r.returncode not in (0, 1) else r.returncode == 1
 
 
@@ -146,7 +159,7 @@ def stale(results: dict, head: str | None = None) -> dict[str, str]:
         elif head is None:
             why[key] = "this checkout is not a git repository: its code cannot be compared"
         else:
-            changed = code_changed(commit, head)
+            changed = code_changed(commit, head, task)
             if changed is None:
                 why[key] = f"commit {commit[:10]} is not in this repository"
             elif changed:

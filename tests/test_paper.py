@@ -179,6 +179,36 @@ def test_stale_rows_are_reported_and_trained_again(tmp_path, monkeypatch, capsys
     assert calls == ["cogail"]
 
 
+def test_a_task_s_rows_go_stale_with_its_own_code_only(tmp_path, monkeypatch):
+    """A commit that changes only another built-in task's package (envs/<other>/) leaves a task's rows fresh; one
+    that changes its own package, the shared envs/ modules or src/ makes them stale."""
+    repo = tmp_path / "repo"
+    for rel in ("src/cogail_jax/a.py", "envs/base.py", "envs/fetchq/config.py", "envs/handover/config.py",
+                "envs/seqmanip/config.py", "experiments/paper.py", "pyproject.toml"):
+        (repo / rel).parent.mkdir(parents=True, exist_ok=True)
+        (repo / rel).write_text("x = 1\n")
+    monkeypatch.setattr(paper, "ROOT", repo / "experiments")
+    git = lambda *a: paper._git(*a).stdout.strip()  # noqa: E731
+    git("-C", str(repo), "init", "-q")  # (git runs in experiments/)
+
+    def commit(rel=None):
+        if rel:
+            (repo / rel).write_text((repo / rel).read_text() + "y = 2\n")
+        git("add", "-A")
+        git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "c", "--allow-empty")
+        return git("rev-parse", "HEAD")
+
+    first = commit()
+    other = commit("envs/handover/config.py")
+    assert paper.code_changed(first, other, "seqmanip") is False
+    assert paper.code_changed(first, other, "handover") is True and paper.code_changed(first, other) is True
+    for rel in ("envs/seqmanip/config.py", "envs/base.py", "src/cogail_jax/a.py", "pyproject.toml"):
+        assert paper.code_changed(other, commit(rel), "seqmanip") is True, rel
+    assert paper.code_changed(first, commit("experiments/paper.py"), "fetchq") is True  # (src/ changed since first)
+    last = git("rev-parse", "HEAD")
+    assert paper.code_changed(git("rev-parse", "HEAD~1"), last, "fetchq") is False  # experiments/ is not code
+
+
 def _coplay(scripted, proxy, ref_proxy=0.8):
     parts = ["scripted", "slow", "pauses", "proxy"]
     got = {"scripted": _s(scripted), "slow": _s(scripted - 0.2), "pauses": _s(scripted - 0.1), "proxy": _s(proxy)}

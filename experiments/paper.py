@@ -28,8 +28,9 @@ share the grid; ``--merge`` then joins their ``paper.json``.
 Each run's entry records the commit it was trained at (and whether the code had uncommitted changes) and the
 ``--set`` overrides it was resolved with. A row is *stale* when it was not trained from this checkout's code (another
 commit whose ``src/``, ``envs/`` or ``pyproject.toml`` differ from this one's, other built-in tasks' packages
-``envs/<task>/`` aside, or uncommitted changes) or when its config is not what the current settings resolve to; ``--check`` lists the stale rows (exit status 1 if any), and a
-grid run trains stale rows again instead of reusing them.
+``envs/<task>/`` aside, or whose own task's folder does, for a task of your own in this repository, or uncommitted
+changes) or when its config is not what the current settings resolve to; ``--check`` lists the stale rows (exit
+status 1 if any), and a grid run trains stale rows again instead of reusing them.
 
 GPU execution is deterministic (XLA_FLAGS ``--xla_gpu_deterministic_ops=true``) unless ``--nondeterministic``.
 """
@@ -108,13 +109,39 @@ CODE = (":/src", ":/envs", ":/pyproject.toml")  # what a run's figures depend on
 def task_code(task: str | None = None) -> tuple[str, ...]:
     """What the figures of ``task``'s rows depend on: ``CODE`` without the other built-in tasks' packages
     (``envs/<name>/``; nothing outside a task's package names a task, so editing one task, or adding your own,
-    leaves the other tasks' rows fresh). ``None``: all of ``CODE``."""
+    leaves the other tasks' rows fresh), and a task of your own's folder where it lies in this repository
+    (``own_task_folder``). ``None``: all of ``CODE``."""
     if task is None:
         return CODE
     import cogail_envs
 
-    return CODE + tuple(f":(top,exclude)envs/{name}" for name in cogail_envs.builtin_task_names()
-                        if name != task and (ROOT.parent / "envs" / name).is_dir())
+    own = own_task_folder(task)
+    return CODE + ((f":(top){own}",) if own else ()) + tuple(
+        f":(top,exclude)envs/{name}" for name in cogail_envs.builtin_task_names()
+        if name != task and (ROOT.parent / "envs" / name).is_dir())
+
+
+def own_task_folder(task: str) -> str | None:
+    """The folder, relative to this repository's top, of a task of your own given as ``module:TASK`` or
+    ``folder:TASK`` (its package's folder, or the folder of its module file); None for a task named otherwise or
+    one outside the repository."""
+    if ":" not in task:
+        return None
+    from cogail_envs import get_task
+
+    ref = task.rpartition(":")[0]
+    path = Path(ref)
+    if not path.exists():
+        get_task(task)  # imports its module the way every command does
+        file = getattr(sys.modules.get(ref), "__file__", None)
+        if not file:
+            return None
+        path = Path(file)
+    folder = (path if path.is_dir() else path.parent).resolve()
+    try:
+        return folder.relative_to(ROOT.parent.resolve()).as_posix()
+    except ValueError:
+        return None
 
 
 def _git(*args) -> subprocess.CompletedProcess | None:

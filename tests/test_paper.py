@@ -207,6 +207,27 @@ def test_a_task_s_rows_go_stale_with_its_own_code_only(tmp_path, monkeypatch):
     assert paper.code_changed(first, commit("experiments/paper.py"), "fetchq") is True  # (src/ changed since first)
     last = git("rev-parse", "HEAD")
     assert paper.code_changed(git("rev-parse", "HEAD~1"), last, "fetchq") is False  # experiments/ is not code
+    # a task of your own in the repository: its folder counts for its rows, and for no other task's
+    monkeypatch.setattr(paper, "own_task_folder", lambda t: "mine" if t == "mine:TASK" else None)
+    (repo / "mine").mkdir()
+    (repo / "mine" / "env.py").write_text("x = 1\n")
+    before = commit()
+    after = commit("mine/env.py")
+    assert paper.code_changed(before, after, "mine:TASK") is True
+    assert paper.code_changed(before, after, "seqmanip") is False
+
+
+def test_a_task_of_your_own_is_found_in_the_repository(tmp_path):
+    """``own_task_folder``: the folder of a task given as module:TASK or folder:TASK, relative to the repository's
+    top; None for a built-in task's name and for a task outside the repository."""
+    root = Path(paper.ROOT).parent
+    if not (root / "examples" / "table_carry").is_dir():
+        pytest.skip("no example task in this checkout")
+    assert paper.own_task_folder("examples.table_carry:TASK") == "examples/table_carry"
+    assert paper.own_task_folder(f"{root / 'examples' / 'table_carry'}:TASK") == "examples/table_carry"
+    assert ":(top)examples/table_carry" in paper.task_code("examples.table_carry:TASK")
+    assert paper.own_task_folder("seqmanip") is None
+    assert paper.own_task_folder(f"{tmp_path}:TASK") is None
 
 
 def _coplay(scripted, proxy, ref_proxy=0.8):

@@ -117,7 +117,7 @@ POSE_SALT = 4_242
 LIFTED_SEEN, STILL_SPEED, STILL_STEPS, WAIT_Z, AWAY = 0.03, 0.001, 6, 0.16, 0.06
 # the drop: a bar turned by at most this much (rad, about the vertical; plus half the episode's ``drop[3]``) fits the
 # open drawer at the drop point, so the dropper turns a bar only as far as it must (none within the bound)
-DROP_FITS = 0.3
+DROP_FITS = 0.4
 
 
 def _rotz(yaw: jax.Array) -> jax.Array:
@@ -228,7 +228,7 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
         wait_pt=jnp.stack([wait_h,
                            u(ks[3], [0.04, 0.13, 0.24], [0.10, 0.17, 0.29], (3,))]),
         yaw=slice_draw(ks[4], held & held_yaw, (-YAW_RANGE[1], YAW_RANGE[1]), YAW_HELD, symmetric=True),
-        drop=u(ks[5], [0.042, -0.03, 0.01, -0.1], [0.052, 0.03, 0.03, 0.1], (4,)),
+        drop=u(ks[5], [0.047, -0.03, 0.01, -0.1], [0.055, 0.03, 0.03, 0.1], (4,)),
         open_amt=u(ks[6], 0.125, 0.155),
         handle_y=jnp.stack([u(ks[7], -0.04, -0.005), u(ks[8], 0.005, 0.04)]),
         vmax=vmax.at[0].set(jnp.minimum(vmax[0] * pace, 1.0)),

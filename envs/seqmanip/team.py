@@ -38,8 +38,8 @@ Poses and places (the ranges a person plausibly uses; the robot grasps the bar w
 * the human's waiting point with the bar (its TCP, strategy 2): x in [-0.09, 0.04], y in [-0.23, -0.14], z in
   [0.18, 0.25]; held-out slice: z in (0.25, 0.30].
 
-The drop (either agent): the bar's centre 4.2-5.2 cm past the drawer's front inner wall, 1-3 cm above the walls. A
-bar turned by at most 0.25-0.35 rad (the episode's bound) fits the drawer there, so the dropper turns the bar only as
+The drop (either agent): the bar's centre 4.7-5.5 cm past the drawer's front inner wall, 1-3 cm above the walls. A
+bar turned by at most 0.35-0.45 rad (the episode's bound) fits the drawer there, so the dropper turns the bar only as
 far as it must: a bar held within the bound is dropped as it is held, one turned further is turned back to the bound
 first, as a person putting it away would.
 

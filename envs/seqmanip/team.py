@@ -3,7 +3,7 @@
 Two phase machines (human ``H_*``, robot ``R_*``; successor tables ``NEXT_H`` / ``NEXT_R`` per strategy).
 The strategy is drawn from ``mix``; within a strategy the team varies the handover spot, the yaw at which the
 human holds the bar, the waiting points (ranges below), how far the drawer is pulled
-(12.5-15.5 cm), where each hand grasps the handle, where and from how high the object is dropped, speeds,
+(14-15.5 cm), where each hand grasps the handle, where and from how high the object is dropped, speeds,
 acceleration limits, gains, start and reaction delays, a pause after lifting and action noise. Motions are
 proportional control with velocity and acceleration limits (bell-shaped, minimum-jerk-like speed
 profiles). Waiting phases are gated: their timer only runs while the awaited condition holds (e.g. the
@@ -38,8 +38,8 @@ Poses and places (the ranges a person plausibly uses; the robot grasps the bar w
 * the human's waiting point with the bar (its TCP, strategy 2): x in [-0.09, 0.04], y in [-0.23, -0.14], z in
   [0.18, 0.25]; held-out slice: z in (0.25, 0.30].
 
-The drop (either agent): the bar's centre 4.7-5.5 cm past the drawer's front inner wall, 1-3 cm above the walls. A
-bar turned by at most 0.35-0.45 rad (the episode's bound) fits the drawer there, so the dropper turns the bar only as
+The drop (either agent): the bar's centre 5.2-5.8 cm past the drawer's front inner wall, 1-3 cm above the walls. A
+bar turned by at most 0.45-0.55 rad (the episode's bound) fits the drawer there, so the dropper turns the bar only as
 far as it must: a bar held within the bound is dropped as it is held, one turned further is turned back to the bound
 first, as a person putting it away would.
 
@@ -117,7 +117,7 @@ POSE_SALT = 4_242
 LIFTED_SEEN, STILL_SPEED, STILL_STEPS, WAIT_Z, AWAY = 0.03, 0.001, 6, 0.16, 0.06
 # the drop: a bar turned by at most this much (rad, about the vertical; plus half the episode's ``drop[3]``) fits the
 # open drawer at the drop point, so the dropper turns a bar only as far as it must (none within the bound)
-DROP_FITS = 0.4
+DROP_FITS = 0.5
 
 
 def _rotz(yaw: jax.Array) -> jax.Array:
@@ -228,8 +228,8 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
         wait_pt=jnp.stack([wait_h,
                            u(ks[3], [0.04, 0.13, 0.24], [0.10, 0.17, 0.29], (3,))]),
         yaw=slice_draw(ks[4], held & held_yaw, (-YAW_RANGE[1], YAW_RANGE[1]), YAW_HELD, symmetric=True),
-        drop=u(ks[5], [0.047, -0.03, 0.01, -0.1], [0.055, 0.03, 0.03, 0.1], (4,)),
-        open_amt=u(ks[6], 0.125, 0.155),
+        drop=u(ks[5], [0.052, -0.03, 0.01, -0.1], [0.058, 0.03, 0.03, 0.1], (4,)),
+        open_amt=u(ks[6], 0.14, 0.155),
         handle_y=jnp.stack([u(ks[7], -0.04, -0.005), u(ks[8], 0.005, 0.04)]),
         vmax=vmax.at[0].set(jnp.minimum(vmax[0] * pace, 1.0)),
         amax=amax.at[0].multiply(pace),

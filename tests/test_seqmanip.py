@@ -165,3 +165,15 @@ def test_a_patient_human_holds_on_at_a_handover_only(rollout, env):
     assert not (wait[:n] & ~grasped[:n]).any()
     assert not wait[:n][np.asarray(sid[:n]) == 2].any()  # robot-opens: the human's release is the drop
     assert wait[-1, RELEASE_AT] and not wait[-1, :RELEASE_AT].any()
+
+
+def test_the_dropper_turns_the_bar_back_only_beyond_what_the_drawer_takes():
+    from types import SimpleNamespace
+
+    from cogail_envs.seqmanip.team import DROP_FITS, _drop_yaw
+
+    ts = SimpleNamespace(drop=jnp.array([0.05, 0.0, 0.02, 0.1]))  # this episode's bound: DROP_FITS + 0.05
+    bound = DROP_FITS + 0.05
+    held = jnp.array([0.2, -0.3, 0.9, -1.0, np.pi - 0.1])  # the last: the same bar, half a turn round
+    got = np.asarray(jax.vmap(lambda y: _drop_yaw({"yaw": jnp.stack([y, y])}, ts, 1))(held))
+    np.testing.assert_allclose(got, [0.2, -0.3, bound, -bound, -0.1], atol=1e-6)

@@ -110,6 +110,7 @@ YAW_RANGE, YAW_HELD = (0.0, 0.7), (0.7, 1.05)   # |yaw| of the held bar: trainin
 SPOT_LO, SPOT_HI, SPOT_Z_HELD = (-0.20, -0.08, 0.12), (0.02, 0.01, 0.26), (0.26, 0.31)
 WAIT_LO, WAIT_HI, WAIT_Z_HELD = (-0.09, -0.23, 0.18), (0.04, -0.14, 0.25), (0.25, 0.30)
 POSE_SALT = 4_242
+HOVER_SALT = 7_117
 # what the co-play agents see of each other (``human_act`` / ``robot_act``): the bar lifted (its centre this
 # high, the human grasping it), held still (moving less than STILL_SPEED per step for STILL_STEPS steps), the
 # human's TCP this high when it waits with the bar by the drawer (strategy 2; the lift stays below), and an agent
@@ -186,6 +187,7 @@ class TeamState(NamedTuple):
     follows: jax.Array    # () bool: the robot takes the strategy the human's moves suggest (FOLLOWING_PARTNER)
     # co-play only (``robot_act``; the default team ignores them): the bar's position the robot saw last step, for
     # how many steps it has seen the bar held still, and the strategy it has read off the human (0: none yet)
+    hover: jax.Array = np.full((), np.nan, np.float32)  # the robot's yaw while it waits with the bar (NaN: as taken)
     seen: jax.Array = np.zeros((3,), np.float32)
     still: jax.Array = np.zeros((), np.int32)
     guess: jax.Array = np.zeros((), np.int32)
@@ -255,6 +257,11 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
         decoy_n=decoy_n.astype(jnp.int32),
         follows=follows,
     )
+    hmax = float(getattr(env, "robot_hover_yaw", 0.0))
+    if hmax:
+        kh = jax.random.split(jax.random.fold_in(rng, HOVER_SALT))
+        on = jax.random.bernoulli(kh[0], float(getattr(env, "robot_hover_share", 1.0)))
+        ts = ts._replace(hover=jnp.where(on, u(kh[1], -hmax, hmax), jnp.nan).astype(jnp.float32))
     return ts, strategy
 
 
@@ -411,7 +418,8 @@ def _robot(env, ts: TeamState, c: dict, seen: dict | None = None):
         R_PULL: c["pull"][1], R_HOLD_OPEN: hold_r, R_PUSH: c["push"][1], R_LET_GO: hold_r}, retreat_r)
     yawt = _select(pr, {
         R_APPROACH: obj_yaw, R_DESCEND: obj_yaw, R_CLOSE: obj_yaw, R_ABOVE_DROP: _drop_yaw(c, ts, 1),
-        R_LOWER: _drop_yaw(c, ts, 1), R_TO_HANDLE: 0.0, R_DESC_HANDLE: 0.0, R_GRIP_HANDLE: 0.0, R_PULL: 0.0,
+        R_LOWER: _drop_yaw(c, ts, 1), R_HOVER: ts.hover, R_WAIT_OPEN: ts.hover, R_TO_HANDLE: 0.0,
+        R_DESC_HANDLE: 0.0, R_GRIP_HANDLE: 0.0, R_PULL: 0.0,
         R_HOLD_OPEN: 0.0, R_PUSH: 0.0}, jnp.nan)
     grip = jnp.where(((pr >= R_CLOSE) & (pr <= R_LOWER)) | ((pr >= R_GRIP_HANDLE) & (pr <= R_PUSH)), -1.0, 1.0)
     near = lambda tgt, tol: _near(c, 1, tgt, tol)  # noqa: E731

@@ -208,7 +208,8 @@ class SeqManip(CollabEnv):
     def __init__(self, max_episode_steps: int = 600, iterations: int = mc.ITERATIONS,
                  ls_iterations: int = mc.LS_ITERATIONS, n_substeps: int = mc.N_SUBSTEPS,
                  side_walls: bool = True, finger_condim: int = mc.FINGER_CONDIM,
-                 timestep: float = mc.TIMESTEP, robot_start_yaw: float = 0.0, robot_start_z: float = 0.03):
+                 timestep: float = mc.TIMESTEP, robot_start_yaw: float = 0.0, robot_start_z: float = 0.03,
+                 robot_hover_yaw: float = 0.0, robot_hover_share: float = 1.0):
         import mujoco
         from mujoco import mjx
 
@@ -217,6 +218,11 @@ class SeqManip(CollabEnv):
         self.init_lo[8], self.init_lo[9] = -float(robot_start_z), -float(robot_start_yaw)
         if (float(robot_start_yaw), float(robot_start_z)) != (0.0, 0.03):  # another start: another dataset version
             self.spec_tag = f"{type(self).spec_tag}-robot-start-{float(robot_start_yaw):g}-{float(robot_start_z):g}"
+        # the team's robot, having taken the bar (s1), holds it turned by up to this much while it waits (in a share
+        # of the episodes); 0: as it took it
+        self.robot_hover_yaw, self.robot_hover_share = float(robot_hover_yaw), float(robot_hover_share)
+        if self.robot_hover_yaw:
+            self.spec_tag = f"{self.spec_tag}-hover-{self.robot_hover_yaw:g}-{self.robot_hover_share:g}"
         self.n_substeps = int(n_substeps)
         self.timestep = float(timestep)
         self.xml = seqmanip_xml(iterations, ls_iterations, side_walls, finger_condim, self.timestep)
@@ -234,7 +240,7 @@ class SeqManip(CollabEnv):
         self._renderer = None
 
     # the observation layout and the team's pose ranges (part of the version fingerprint of generated data)
-    spec_tag = "obs65-object-frame-poses3-prompt-start10"
+    spec_tag = "obs65-object-frame-poses3-prompt-start10-drop-fits-04"
     object_frame_dims = tuple(range(43, 65))
     orientation_dims = (*range(3, 9), *range(12, 18), *range(24, 30))  # the TCPs' and the bar's 6D rotations
 

@@ -38,6 +38,11 @@ Poses and places (the ranges a person plausibly uses; the robot grasps the bar w
 * the human's waiting point with the bar (its TCP, strategy 2): x in [-0.09, 0.04], y in [-0.23, -0.14], z in
   [0.18, 0.25]; held-out slice: z in (0.25, 0.30].
 
+The drop (either agent): the bar's centre 4.7-5.5 cm past the drawer's front inner wall, 1-3 cm above the walls. A
+bar turned by at most 0.35-0.45 rad (the episode's bound) fits the drawer there, so the dropper turns the bar only as
+far as it must: a bar held within the bound is dropped as it is held, one turned further is turned back to the bound
+first, as a person putting it away would.
+
 Every default, training, validation and test episode lies in the training ranges; an episode drawn with
 ``variation | POSE_HELDOUT`` (the ``pose_heldout`` evaluation set) has either its yaw or its height (one of
 the two, at even odds) in the held-out slice and the other in range.
@@ -105,11 +110,15 @@ YAW_RANGE, YAW_HELD = (0.0, 0.7), (0.7, 1.05)   # |yaw| of the held bar: trainin
 SPOT_LO, SPOT_HI, SPOT_Z_HELD = (-0.20, -0.08, 0.12), (0.02, 0.01, 0.26), (0.26, 0.31)
 WAIT_LO, WAIT_HI, WAIT_Z_HELD = (-0.09, -0.23, 0.18), (0.04, -0.14, 0.25), (0.25, 0.30)
 POSE_SALT = 4_242
+HOVER_SALT = 7_117
 # what the co-play agents see of each other (``human_act`` / ``robot_act``): the bar lifted (its centre this
 # high, the human grasping it), held still (moving less than STILL_SPEED per step for STILL_STEPS steps), the
 # human's TCP this high when it waits with the bar by the drawer (strategy 2; the lift stays below), and an agent
 # gone from the bar once its TCP is this far from it (gripper open, not touching)
 LIFTED_SEEN, STILL_SPEED, STILL_STEPS, WAIT_Z, AWAY = 0.03, 0.001, 6, 0.16, 0.06
+# the drop: a bar turned by at most this much (rad, about the vertical; plus half the episode's ``drop[3]``) fits the
+# open drawer at the drop point, so the dropper turns a bar only as far as it must (none within the bound)
+DROP_FITS = 0.4
 
 
 def _rotz(yaw: jax.Array) -> jax.Array:
@@ -152,7 +161,7 @@ class TeamState(NamedTuple):
     spot: jax.Array       # (3,) object-centre target of the handover (strategy 1, world)
     wait_pt: jax.Array    # (2, 3) waiting points: human with the object (s2), robot with the object (s1)
     yaw: jax.Array        # () carry yaw of the human (rad)
-    drop: jax.Array       # (4,) drop point: x past the drawer's front inner wall, y, release height, yaw
+    drop: jax.Array       # (4,) drop point: x past the drawer's front inner wall, y, release height; its yaw bound
     open_amt: jax.Array   # () how far the opener pulls the drawer (m)
     handle_y: jax.Array   # (2,) where each agent grasps the handle (y offset from its centre)
     vmax: jax.Array       # (2,) speed limits (action units)
@@ -178,6 +187,7 @@ class TeamState(NamedTuple):
     follows: jax.Array    # () bool: the robot takes the strategy the human's moves suggest (FOLLOWING_PARTNER)
     # co-play only (``robot_act``; the default team ignores them): the bar's position the robot saw last step, for
     # how many steps it has seen the bar held still, and the strategy it has read off the human (0: none yet)
+    hover: jax.Array = np.full((), np.nan, np.float32)  # the robot's yaw while it waits with the bar (NaN: as taken)
     seen: jax.Array = np.zeros((3,), np.float32)
     still: jax.Array = np.zeros((), np.int32)
     guess: jax.Array = np.zeros((), np.int32)
@@ -220,7 +230,7 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
         wait_pt=jnp.stack([wait_h,
                            u(ks[3], [0.04, 0.13, 0.24], [0.10, 0.17, 0.29], (3,))]),
         yaw=slice_draw(ks[4], held & held_yaw, (-YAW_RANGE[1], YAW_RANGE[1]), YAW_HELD, symmetric=True),
-        drop=u(ks[5], [0.035, -0.03, 0.01, -0.1], [0.05, 0.03, 0.03, 0.1], (4,)),
+        drop=u(ks[5], [0.047, -0.03, 0.01, -0.1], [0.055, 0.03, 0.03, 0.1], (4,)),
         open_amt=u(ks[6], 0.125, 0.155),
         handle_y=jnp.stack([u(ks[7], -0.04, -0.005), u(ks[8], 0.005, 0.04)]),
         vmax=vmax.at[0].set(jnp.minimum(vmax[0] * pace, 1.0)),
@@ -247,6 +257,11 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
         decoy_n=decoy_n.astype(jnp.int32),
         follows=follows,
     )
+    hmax = float(getattr(env, "robot_hover_yaw", 0.0))
+    if hmax:
+        kh = jax.random.split(jax.random.fold_in(rng, HOVER_SALT))
+        on = jax.random.bernoulli(kh[0], float(getattr(env, "robot_hover_share", 1.0)))
+        ts = ts._replace(hover=jnp.where(on, u(kh[1], -hmax, hmax), jnp.nan).astype(jnp.float32))
     return ts, strategy
 
 
@@ -288,6 +303,12 @@ def _near(c, i, tgt, tol):
     return jnp.linalg.norm(c["tcp"][i] - tgt) < tol
 
 
+def _drop_yaw(c, ts: TeamState, i):
+    """The yaw agent ``i`` drops the bar at: its own, turned back within the bound the drawer takes."""
+    bound = DROP_FITS + 0.5 * ts.drop[3]
+    return jnp.clip(mc.wrap_angle(c["yaw"][i], np.pi), -bound, bound)
+
+
 def _yaw_ok(c, i, tgt):
     return jnp.abs(mc.wrap_angle(c["yaw"][i] - tgt, np.pi)) < 0.05
 
@@ -315,7 +336,7 @@ def _human(env, ts: TeamState, c: dict, coplay: bool = False):
         H_REACH: obj_yaw, H_DESCEND: obj_yaw, H_CLOSE: obj_yaw, H_LIFT: ts.yaw, H_CARRY: ts.yaw,
         H_OFFER: ts.yaw, H_TO_HANDLE: 0.0, H_DESC_HANDLE: 0.0, H_GRIP_HANDLE: 0.0, H_PULL: 0.0,
         H_HOLD_OPEN: 0.0, H_PUSH: 0.0, H_CARRY_WAIT: ts.yaw, H_WAIT_OPEN: ts.yaw,
-        H_ABOVE_DROP: ts.drop[3], H_LOWER: ts.drop[3]}, c["yaw"][0])
+        H_ABOVE_DROP: _drop_yaw(c, ts, 0), H_LOWER: _drop_yaw(c, ts, 0)}, c["yaw"][0])
     offer_release = (ph == H_OFFER) & (th >= ts.react[0])
     grip = jnp.where(((ph >= H_CLOSE) & (ph <= H_OFFER) & ~offer_release)
                      | ((ph >= H_GRIP_HANDLE) & (ph <= H_PUSH))
@@ -348,7 +369,7 @@ def _human(env, ts: TeamState, c: dict, coplay: bool = False):
         H_LET_GO: c["gap_open"][0] & (th >= 3),
         H_CARRY_WAIT: near(ts.wait_pt[0], 0.012) & _yaw_ok(c, 0, ts.yaw),
         H_WAIT_OPEN: th >= ts.react[0],
-        H_ABOVE_DROP: near(drop_tcp[0] + _up(0.06), 0.012) & _yaw_ok(c, 0, ts.drop[3]),
+        H_ABOVE_DROP: near(drop_tcp[0] + _up(0.06), 0.012) & _yaw_ok(c, 0, _drop_yaw(c, ts, 0)),
         H_LOWER: near(drop_tcp[0], 0.008),
         H_RELEASE: c["gap_open"][0] & (th >= 3)}, False)
     target, adv, wp_on, decoy_n = _human_variation(ts, c, target, adv, g_h, spot_h)
@@ -396,8 +417,9 @@ def _robot(env, ts: TeamState, c: dict, seen: dict | None = None):
         R_TO_HANDLE: handle_pt[1] + _up(0.07), R_DESC_HANDLE: handle_pt[1], R_GRIP_HANDLE: hold_r,
         R_PULL: c["pull"][1], R_HOLD_OPEN: hold_r, R_PUSH: c["push"][1], R_LET_GO: hold_r}, retreat_r)
     yawt = _select(pr, {
-        R_APPROACH: obj_yaw, R_DESCEND: obj_yaw, R_CLOSE: obj_yaw, R_ABOVE_DROP: ts.drop[3],
-        R_LOWER: ts.drop[3], R_TO_HANDLE: 0.0, R_DESC_HANDLE: 0.0, R_GRIP_HANDLE: 0.0, R_PULL: 0.0,
+        R_APPROACH: obj_yaw, R_DESCEND: obj_yaw, R_CLOSE: obj_yaw, R_ABOVE_DROP: _drop_yaw(c, ts, 1),
+        R_LOWER: _drop_yaw(c, ts, 1), R_HOVER: ts.hover, R_WAIT_OPEN: ts.hover, R_TO_HANDLE: 0.0,
+        R_DESC_HANDLE: 0.0, R_GRIP_HANDLE: 0.0, R_PULL: 0.0,
         R_HOLD_OPEN: 0.0, R_PUSH: 0.0}, jnp.nan)
     grip = jnp.where(((pr >= R_CLOSE) & (pr <= R_LOWER)) | ((pr >= R_GRIP_HANDLE) & (pr <= R_PUSH)), -1.0, 1.0)
     near = lambda tgt, tol: _near(c, 1, tgt, tol)  # noqa: E731
@@ -426,7 +448,7 @@ def _robot(env, ts: TeamState, c: dict, seen: dict | None = None):
         R_LIFT: near(lift_r, 0.015),
         R_HOVER: near(ts.wait_pt[1], 0.012),
         R_WAIT_OPEN: tr >= ts.react[1],
-        R_ABOVE_DROP: near(drop_tcp[1] + _up(0.06), 0.012) & _yaw_ok(c, 1, ts.drop[3]),
+        R_ABOVE_DROP: near(drop_tcp[1] + _up(0.06), 0.012) & _yaw_ok(c, 1, _drop_yaw(c, ts, 1)),
         R_LOWER: near(drop_tcp[1], 0.008),
         R_RELEASE: c["gap_open"][1] & (tr >= 3),
         R_TO_HANDLE: near(handle_pt[1] + _up(0.07), 0.012) & _yaw_ok(c, 1, 0.0),

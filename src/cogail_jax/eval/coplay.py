@@ -38,6 +38,9 @@ PROXY_SEED = 0  # the proxy's initial parameters
 PROXY_HIDDEN = (256, 256)
 PROXY_LR = 1e-3
 SCRIPTED, PROXY = "scripted", "proxy"
+# the proxy plays this many times the other partners' episodes: its success is rare on some tasks (seqmanip's proxy
+# finishes about 1 episode in 10 with any robot), and a ratio of two such rates is noise at the others' count
+PROXY_EPISODES = 4
 EPISODE_KEYS = ("key", "variation", "proxy", "scripted_robot")  # an episode batch's device arrays
 TEST_SPLIT = "test"
 
@@ -186,22 +189,25 @@ def train_proxy(demos: dict, split: str, steps: int = 2000, seed: int = PROXY_SE
 def episode_batch(env, names: list[str], episodes: int, robots: tuple = ("learned", "scripted"),
                   first: int = 0) -> dict:
     """The co-play episodes of partners ``names`` (``partners(env)``), ``episodes`` each (episodes ``first`` ..
-    ``first + episodes - 1``), with each of ``robots`` (``learned``, ``scripted``): ``key`` (E, 2), ``variation``
-    (E,), ``proxy`` (E,) bool, ``scripted_robot`` (E,) bool, and the host-side ``partner`` / ``robot`` labels of each episode."""
+    ``first + episodes - 1``; the proxy ``PROXY_EPISODES`` times as many, its first ``episodes`` the others'), with
+    each of ``robots`` (``learned``, ``scripted``): ``key`` (E, 2), ``variation`` (E,), ``proxy`` (E,) bool,
+    ``scripted_robot`` (E,) bool, and the host-side ``partner`` / ``robot`` labels of each episode."""
     from cogail_envs.variations import variation_id
 
+    most = episodes * (PROXY_EPISODES if PROXY in names else 1)
     keys = np.asarray(jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(COPLAY_SEED), i))(
-        jnp.arange(first, first + episodes)))
+        jnp.arange(first, first + most)))
     rows = {"key": [], "variation": [], "proxy": [], "scripted_robot": [], "partner": [], "robot": []}
     for robot in robots:
         for name in names:
-            rows["key"].append(keys)
-            rows["variation"].append(np.full(episodes, 0 if name in (SCRIPTED, PROXY) else variation_id(name),
+            n = episodes * (PROXY_EPISODES if name == PROXY else 1)
+            rows["key"].append(keys[:n])
+            rows["variation"].append(np.full(n, 0 if name in (SCRIPTED, PROXY) else variation_id(name),
                                              np.int32))
-            rows["proxy"].append(np.full(episodes, name == PROXY))
-            rows["scripted_robot"].append(np.full(episodes, robot == "scripted"))
-            rows["partner"] += [name] * episodes
-            rows["robot"] += [robot] * episodes
+            rows["proxy"].append(np.full(n, name == PROXY))
+            rows["scripted_robot"].append(np.full(n, robot == "scripted"))
+            rows["partner"] += [name] * n
+            rows["robot"] += [robot] * n
     out = {k: np.concatenate(v) for k, v in rows.items() if k not in ("partner", "robot")}
     out["partner"], out["robot"] = np.asarray(rows["partner"]), np.asarray(rows["robot"])
     return out
@@ -378,7 +384,9 @@ def evaluate(s, checkpoints: dict[str, tuple[int, dict]], episodes: int | None =
         learned[key] = {"checkpoint": int(step), "success": _per_partner(out["success"], batch, "learned", cfg.seeds)}
         if p.scripted and ref is None:
             ref = {k: v["mean"] for k, v in _per_partner(out["success"][:1], batch, "scripted", [0]).items()}
-    res = {"partners": p.names, "episodes": p.episodes, "seed": COPLAY_SEED, "learned": learned,
+    res = {"partners": p.names, "episodes": p.episodes,
+           "proxy_episodes": p.episodes * PROXY_EPISODES if PROXY in p.names else 0, "seed": COPLAY_SEED,
+           "learned": learned,
            "scripted_robot": ref, "proxy": dict(p.proxy_info)}
     if ref is not None:
         res["proxy"]["success_with_scripted_robot"] = ref.get(PROXY)
@@ -392,8 +400,9 @@ def markdown(c: dict) -> list[str]:
                          for k in keys]]
     if c.get("scripted_robot"):
         head.append("scripted robot (reference)")
+    proxy_n = f", the proxy {c['proxy_episodes']}" if c.get("proxy_episodes") else ""
     lines = ["", "Closed-loop co-play (success, %; mean +- std over seeds; "
-             f"{c['episodes']} episodes per partner, the same starts for every partner and robot):", "",
+             f"{c['episodes']} episodes per partner{proxy_n}, the same starts for every partner and robot):", "",
              "| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
     for name in c["partners"]:
         row = [name]

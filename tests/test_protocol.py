@@ -492,7 +492,7 @@ def test_a_replay_runs_the_margin_past_a_late_recording(tiny_cfg, demo_files, fe
     assert np.all(interp_t[~interp_won] == T) and np.all(interp_t <= T)
 
 
-def test_pruned_policies_keep_the_reported_checkpoints_and_refuse_a_full_reevaluation(tmp_path):
+def test_pruned_policies_keep_the_reported_checkpoints_and_refuse_a_full_reevaluation(tmp_path, monkeypatch):
     """After an evaluation only the policies of the checkpoints results.json reports figures of are kept (and the
     newest); results.json keeps every checkpoint's evaluation, extra sets still need no re-evaluation, and evaluating
     every checkpoint again ends in one sentence naming --keep-policies all."""
@@ -521,3 +521,23 @@ def test_pruned_policies_keep_the_reported_checkpoints_and_refuse_a_full_reevalu
         eval_runner.eval_run(run, progress=False)
     assert str(e.value).count("\n") == 0
     assert eval_runner.prune_policies(run) == []
+    # stopped before deleting: results.json names what is kept, every policy is still there, nothing is refused, and
+    # the next prune ends the job
+    run2 = tmp_path / "run2"
+    mgr = ckpt.manager(run2, folder=ckpt.POLICIES)
+    for st in range(1, 8):
+        ckpt.save(mgr, st, {"w": np.full((2,), st, np.float32)})
+    (run2 / "results.json").write_text(json.dumps(res))
+    (run2 / "config.json").write_text("{}")
+
+    def stopped(*_):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as m:
+        m.setattr(ckpt, "prune", stopped)
+        with pytest.raises(KeyboardInterrupt):
+            eval_runner.prune_policies(run2)
+    assert json.loads((run2 / "results.json").read_text())["policies_kept"] == [2, 3, 4, 6, 7]
+    assert ckpt.steps(ckpt.policy_manager(run2)) == list(range(1, 8))
+    eval_runner._refuse_pruned(run2, eval_runner.Policies(run2))  # every checkpoint can still be evaluated
+    assert eval_runner.prune_policies(run2) == [1, 5]

@@ -166,11 +166,12 @@ def prune_policies(run_dir: str | Path) -> list[int]:
     if store.full or not store.steps():
         return []
     keep = set(protocol.reported_checkpoints(res)) | {store.steps()[-1]}
-    gone = ckpt.prune(store.mgr, keep)
-    if gone:
-        res["policies_kept"] = store.steps()
-        (run_dir / "results.json").write_text(json.dumps(res, indent=2))
-    return gone
+    if set(store.steps()) <= keep:
+        return []
+    # results.json first: a run stopped in between still has every policy it names, and its next prune ends the job
+    res["policies_kept"] = [st for st in store.steps() if st in keep]
+    (run_dir / "results.json").write_text(json.dumps(res, indent=2))
+    return ckpt.prune(store.mgr, keep)
 
 
 def was_pruned(run_dir: str | Path) -> bool:

@@ -524,11 +524,14 @@ def robustness_rows(results: dict, tasks, methods, prefix: str = "robust-", base
 
 def coplay_rows(results: dict, tasks, methods) -> list[str]:
     """Closed-loop co-play success (%, selected checkpoint, test episodes) of every method's robot with a reacting
-    human: the task's scripted human, the worst of its variations, and the BC proxy of the test humans; the
-    scripted robot with the same partners as the reference, and each robot's proxy success over the scripted
-    robot's."""
-    lines = ["| task | robot | scripted human | its variations, worst | BC proxy | proxy / scripted robot's |",
-             "| --- | --- | --- | --- | --- | --- |"]
+    human: the task's scripted human, the worst of its variations of timing and path, the scripted human presenting
+    the object in the held-out pose slice (``pose_heldout``, a column where some row has it; -: that row's task has
+    none, or the row predates it) and the BC proxy of the test humans; the scripted robot with the same partners as
+    the reference, and each robot's proxy success over the scripted robot's."""
+    from cogail_envs.variations import HELD_OUT
+
+    timing = lambda p: p not in ("scripted", "proxy", HELD_OUT)  # noqa: E731  (the variations of timing and path)
+    rows = []  # (task, robot, scripted, worst, held-out, proxy, ratio)
     for t in tasks:
         ref = None
         for m in methods:
@@ -537,18 +540,26 @@ def coplay_rows(results: dict, tasks, methods) -> list[str]:
                 continue
             ref = ref or cp.get("scripted_robot")
             got = ((cp.get("learned") or {}).get("selected") or {}).get("success") or {}
-            var = [got[p]["mean"] for p in cp.get("partners", []) if p not in ("scripted", "proxy") and p in got]
+            var = [got[p]["mean"] for p in cp.get("partners", []) if timing(p) and p in got]
             sr = (cp.get("scripted_robot") or {}).get("proxy")
             ratio = f"{got['proxy']['mean'] / sr:.2f}" if "proxy" in got and sr else "-"
             worst = f"{100 * min(var):.1f}" if var else "-"
-            lines.append(f"| {t} | {m} | {_pct(got.get('scripted'))} | {worst} | {_pct(got.get('proxy'))} | {ratio} |")
+            rows.append((t, m, _pct(got.get("scripted")), worst, _pct(got.get(HELD_OUT)), _pct(got.get("proxy")),
+                         ratio))
         if ref:
-            var = [v for p, v in ref.items() if p not in ("scripted", "proxy")]
+            var = [v for p, v in ref.items() if timing(p)]
             worst = f"{100 * min(var):.1f}" if var else "-"
+            held = f"{100 * ref[HELD_OUT]:.1f}" if HELD_OUT in ref else "-"
             proxy = f"{100 * ref['proxy']:.1f}" if "proxy" in ref else "-"
-            lines.append(f"| {t} | scripted robot (reference) | {100 * ref.get('scripted', 0):.1f} | {worst} | "
-                         f"{proxy} | 1.00 |")
-    return lines if len(lines) > 2 else []
+            rows.append((t, "scripted robot (reference)", f"{100 * ref.get('scripted', 0):.1f}", worst, held, proxy,
+                         "1.00"))
+    if not rows:
+        return []
+    cols = ["task", "robot", "scripted human", "its variations, worst", "held-out poses", "BC proxy",
+            "proxy / scripted robot's"]
+    keep = [i for i in range(len(cols)) if i != 4 or any(r[4] != "-" for r in rows)]
+    return (["| " + " | ".join(cols[i] for i in keep) + " |", "|" + " --- |" * len(keep)]
+            + ["| " + " | ".join(r[i] for i in keep) + " |" for r in rows])
 
 
 def coplay_table(results: dict, tasks, methods) -> list[str]:
@@ -773,9 +784,10 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
                       *mine]
         if coplay:
             rel = Path(os.path.relpath(out / "coplay.md", readme.resolve().parent)).as_posix()
+            held = " and presenting the object in the held-out pose slice" if "held-out poses" in coplay[0] else ""
             block += ["", "Closed-loop co-play: each method's robot with a reacting human, the task's scripted human and a "
                       "BC proxy of the test humans, beside the scripted robot (selected checkpoint, %; with each "
-                      f"variation of the scripted human: [{rel}]({rel})):", "",
+                      f"variation of the scripted human{held}: [{rel}]({rel})):", "",
                       *coplay_table(results, tasks, methods)]
         if claims:
             block += ["", "Where the grid stands on the paper's claims:", "", *claims]

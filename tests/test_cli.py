@@ -219,17 +219,23 @@ def _tiny_train_eval(run, train, held, validation) -> int:
                      "eval_codes=4", "--no-coplay"])
 
 
-def test_train_with_eval_prepares_the_evaluation_while_training(demo_files, fetchq, tmp_path, capsys):
+def test_train_with_eval_prepares_the_evaluation_while_training(demo_files, fetchq, tmp_path, capsys, monkeypatch):
     """`cogail train --eval`: the evaluation's sets and programs are made ready in the background during training
-    (speed.json's eval_parts.prepared), and the evaluation reports every checkpoint. A validation file that cannot
-    be read ends the command in one sentence after training, whose checkpoints are kept."""
+    (speed.json's eval_parts.prepared), the evaluation reports every checkpoint, and then the policies of the
+    checkpoints it reports no figure of are pruned (``--keep-policies reported``, the default). A validation file
+    that cannot be read ends the command in one sentence after training, whose checkpoints are kept."""
+    from cogail_jax.apps import eval_runner
     from cogail_jax.data import io as data
     from cogail_jax.data import generate as demos
 
+    pruned = []
+    real = eval_runner.prune_policies
+    monkeypatch.setattr(eval_runner, "prune_policies", lambda r: pruned.append(r) or real(r))
     train, held, _ = demo_files
     val = data.save_demos(tmp_path / "val.hdf5", fetchq, demos.generate(fetchq, 4, seed=2), seed=2)
     run = tmp_path / "run"
     assert _tiny_train_eval(run, train, held, val) == 0
+    assert [str(r) for r in pruned] == [str(run)]
     rec = json.loads((run / "speed.json").read_text())
     assert rec["eval_parts"]["prepared"] > 0 and rec["phases"]["eval"] > 0
     assert json.loads((run / "results.json").read_text())["checkpoints"] == [2, 4]

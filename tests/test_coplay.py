@@ -125,6 +125,35 @@ def test_scripted_pair_succeeds_in_coplay(scripted_coplay, task):
         assert set(out["strategy"][0].tolist()) == {1, 2}, out
 
 
+def test_a_held_out_pose_human_is_a_partner_where_the_team_draws_one():
+    """Where the team draws a held-out pose slice, ``pose_heldout`` is a co-play partner: its episodes carry the
+    slice's variation id (the scripted human presents the object there) and start as the other partners' do."""
+    from cogail_envs.variations import HELD_OUT, POSE_HELDOUT
+
+    for task, held in (("fetchq", False), ("handover", True), ("seqmanip", True)):
+        env = make_env(task)
+        names = coplay.partners(env)
+        assert (HELD_OUT in names) == held and names[-1] == coplay.PROXY, (task, names)
+    env = make_env("handover")
+    batch = coplay.episode_batch(env, [coplay.SCRIPTED, HELD_OUT], 3, ("learned",))
+    held = batch["partner"] == HELD_OUT
+    assert (batch["variation"][held] == POSE_HELDOUT).all() and (batch["variation"][~held] == 0).all()
+    assert (batch["key"][held] == batch["key"][~held]).all()  # the same starts as the scripted human's
+
+
+
+def test_the_proxy_plays_more_episodes_from_the_same_starts(fetchq):
+    """The proxy's rare successes get PROXY_EPISODES times the episodes; its first ones start where every other
+    partner's do, with each robot."""
+    b = coplay.episode_batch(fetchq, [coplay.SCRIPTED, coplay.PROXY], 3, ("learned", "scripted"))
+    for robot in ("learned", "scripted"):
+        keys = {n: b["key"][(b["partner"] == n) & (b["robot"] == robot)] for n in (coplay.SCRIPTED, coplay.PROXY)}
+        assert len(keys[coplay.SCRIPTED]) == 3 and len(keys[coplay.PROXY]) == 3 * coplay.PROXY_EPISODES > 3
+        np.testing.assert_array_equal(keys[coplay.PROXY][:3], keys[coplay.SCRIPTED])
+        assert len(np.unique(keys[coplay.PROXY], axis=0)) == len(keys[coplay.PROXY])
+    assert b["proxy"].sum() == 2 * 3 * coplay.PROXY_EPISODES
+
+
 def test_proxy_trains_on_the_test_split_only(demo_files, fetchq):
     """(b) The proxy refuses any split but the test one, learns deterministically, and records what it learned
     from (the test data's digest)."""

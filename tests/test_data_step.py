@@ -40,7 +40,8 @@ def test_data_is_made_by_its_own_step_and_checked_against_the_run(small_splits, 
     mtimes = {p: p.stat().st_mtime_ns for p in (tmp / "data").glob("*.hdf5")}
     assert cli.main(["data", *TINY, "--no-robustness"]) == 0  # current sets are kept as they are
     assert {p: p.stat().st_mtime_ns for p in mtimes} == mtimes
-    assert cli.main(["train", *TINY, "--run", str(run), "--no-progress", "--eval", "--no-robustness"]) == 0
+    assert cli.main(["train", *TINY, "--run", str(run), "--no-progress", "--eval", "--no-robustness",
+                     "--keep-policies", "all"]) == 0  # evaluated again below
     man = json.loads((run / "data.json").read_text())
     assert set(man["sets"]) == {"train", "validation", "test"} and man["expert"]
     assert man["sets"]["test"]["env_version"] == fetchq.version

@@ -542,3 +542,22 @@ def test_the_readme_tables_are_generated_from_the_shipped_grid(tmp_path):
     rows = [line for line in shipped.split(paper.BEGIN)[1].split(paper.END)[0].splitlines()
             if line.startswith(tuple(f"| {m} |" for m in paper.ORDER))]  # Tables 1, 2 and the co-play table
     assert len(rows) == 3 * len(paper.ORDER) and not [r for r in rows if "| - |" in r or r.endswith("| - |")]
+
+
+def test_the_coplay_table_keeps_the_held_out_poses_apart_from_the_variations():
+    """The grid's co-play table gives the held-out pose partner a column of its own: the worst variation is over the
+    variations of timing and path, and a row without that partner reads -."""
+    held = "pose_heldout"
+    cp = {"partners": ["scripted", "slow", held, "proxy"],
+          "learned": {"selected": {"success": {"scripted": {"mean": 0.9}, "slow": {"mean": 0.8},
+                                               held: {"mean": 0.2}, "proxy": {"mean": 0.5}}}},
+          "scripted_robot": {"scripted": 1.0, "slow": 0.95, held: 0.85, "proxy": 0.25}}
+    old = {"partners": ["scripted", "slow", "proxy"],
+           "learned": {"selected": {"success": {"scripted": {"mean": 0.9}, "slow": {"mean": 0.7},
+                                                "proxy": {"mean": 0.5}}}}}
+    rows = paper.coplay_rows({"handover/cogail/uniform": {"coplay": cp}, "handover/ma_gail/uniform": {"coplay": old}},
+                             ["handover"], ["cogail", "ma_gail"])
+    assert "held-out poses" in rows[0]
+    cogail, ma_gail, ref = (r.split(" | ") for r in rows[2:5])
+    assert cogail[3] == "80.0" and ref[3] == "95.0"  # the worst variation of timing and path, not the slice
+    assert cogail[4].startswith("20.0") and ref[4] == "85.0" and ma_gail[4] == "-"

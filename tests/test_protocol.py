@@ -490,3 +490,54 @@ def test_a_replay_runs_the_margin_past_a_late_recording(tiny_cfg, demo_files, fe
     assert np.all(plain_t[~plain_won] == T) and np.all(plain_t <= T)  # the splits: the paper's time limit
     interp_t, interp_won = out["interp_metrics"]["t"][0, 0], out["interp_success"][0, 0] > 0
     assert np.all(interp_t[~interp_won] == T) and np.all(interp_t <= T)
+
+
+def test_pruned_policies_keep_the_reported_checkpoints_and_refuse_a_full_reevaluation(tmp_path, monkeypatch):
+    """After an evaluation only the policies of the checkpoints results.json reports figures of are kept (and the
+    newest); results.json keeps every checkpoint's evaluation, extra sets still need no re-evaluation, and evaluating
+    every checkpoint again ends in one sentence naming --keep-policies all."""
+    from cogail_jax.apps import eval_runner
+    from cogail_jax.apps.runs import RunError
+    from cogail_jax.runtime import checkpoint as ckpt
+
+    run = tmp_path / "run"
+    mgr = ckpt.manager(run, folder=ckpt.POLICIES)
+    for st in range(1, 8):
+        ckpt.save(mgr, st, {"w": np.full((2,), st, np.float32)})
+    res = {"checkpoints": list(range(1, 8)), "selected": {"checkpoint": 3}, "last": {"checkpoint": 6},
+           "paper_protocol": {"replay": {"checkpoint": 4}, "interpolation": {"checkpoint": 4}},
+           "per_seed_best": {"replay": {"checkpoint": {"1": 2, "2": 4}}, "interpolation": {"checkpoint": {"1": 4}}}}
+    (run / "results.json").write_text(json.dumps(res))
+    (run / "config.json").write_text("{}")
+    assert protocol.reported_checkpoints(res) == [2, 3, 4, 6]
+    assert eval_runner.results_current(run) and not eval_runner.was_pruned(run)
+    assert eval_runner.prune_policies(run) == [1, 5]  # 7: the newest
+    assert eval_runner.was_pruned(run)
+    assert ckpt.steps(ckpt.policy_manager(run)) == [2, 3, 4, 6, 7]
+    saved = json.loads((run / "results.json").read_text())
+    assert saved["policies_kept"] == [2, 3, 4, 6, 7] and saved["checkpoints"] == res["checkpoints"]
+    assert eval_runner.results_current(run) and not eval_runner.results_current(run, every=2)
+    with pytest.raises(RunError, match="--keep-policies all") as e:
+        eval_runner.eval_run(run, progress=False)
+    assert str(e.value).count("\n") == 0
+    assert eval_runner.prune_policies(run) == []
+    # stopped before deleting: results.json names what is kept, every policy is still there, nothing is refused, and
+    # the next prune ends the job
+    run2 = tmp_path / "run2"
+    mgr = ckpt.manager(run2, folder=ckpt.POLICIES)
+    for st in range(1, 8):
+        ckpt.save(mgr, st, {"w": np.full((2,), st, np.float32)})
+    (run2 / "results.json").write_text(json.dumps(res))
+    (run2 / "config.json").write_text("{}")
+
+    def stopped(*_):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as m:
+        m.setattr(ckpt, "prune", stopped)
+        with pytest.raises(KeyboardInterrupt):
+            eval_runner.prune_policies(run2)
+    assert json.loads((run2 / "results.json").read_text())["policies_kept"] == [2, 3, 4, 6, 7]
+    assert ckpt.steps(ckpt.policy_manager(run2)) == list(range(1, 8))
+    eval_runner._refuse_pruned(run2, eval_runner.Policies(run2))  # every checkpoint can still be evaluated
+    assert eval_runner.prune_policies(run2) == [1, 5]

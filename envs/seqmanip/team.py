@@ -11,7 +11,7 @@ drawer is open and held), so every hand-off has a reaction delay. In the trainin
 (``variations.PROMPT_ROBOT``) the robot is the most prompt of the team's draws (top speed, acceleration and gain,
 the shortest start and reaction delays), so that the learned robot does not keep the person waiting.
 The training split is also made in the task's training env (``TASK.train_env``): the robot's gripper starts turned
-by up to +-0.5 rad and up to 8 cm above or below its home height (everywhere else within 3 cm of home, not turned).
+by up to +-1.0 rad and up to 8 cm above or below its home height (everywhere else within 3 cm of home, not turned).
 
 1. human-hands-over: the human picks the bar up and carries it out to the handover spot; once the human
    has come past the middle of the table towards it (TCP y > ``CUE_Y``) the robot reacts, grasps the

@@ -177,7 +177,13 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--keep-full", type=_keep_full, default=1, metavar="N",
                    help="how many of the newest whole training states RUN/checkpoints/ keeps (default 1: the newest, "
                         "which --resume continues from), or 'all'; every checkpoint's delivered policy (what eval, "
-                        "play and video read) is kept in RUN/policies/ whatever N is")
+                        "play and video read) goes to RUN/policies/ whatever N is (see --keep-policies)")
+    t.add_argument("--keep-policies", choices=("reported", "all"), default="reported",
+                   help="with --eval: after the evaluation, keep in RUN/policies/ the delivered policies of the "
+                        "checkpoints results.json reports figures of (selected on validation, paper protocol, last, "
+                        "each seed's best) and the newest (default: reported), or every checkpoint's (all: "
+                        "`cogail eval` can then evaluate them all again); results.json keeps every checkpoint's "
+                        "evaluation either way")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     e = sub.add_parser("eval", help="evaluate every checkpoint of a run (interpolation, replay, latent map)",
@@ -445,13 +451,16 @@ def _dispatch(a) -> int:
         print(f"datasets ready in {time.perf_counter() - t0:.1f} s ({xla:.1f} s of it compiling)", flush=True)
         return 0
     if a.command == "train":
-        from .eval_runner import EvalPrep, eval_run
+        from .eval_runner import EvalPrep, eval_run, prune_policies, was_pruned
         from .train_loop import train_run
 
         from ..runtime import distributed
 
         cfg = _config_from_args(a)
         evaluates = a.eval and distributed.primary()  # of several processes, process 0 evaluates
+        # a finished run resumed (e.g. `make train` again) whose evaluation pruned its policies: its results stand
+        evaluated = evaluates and a.resume and was_pruned(a.run)
+        evaluates = evaluates and not evaluated
         kept = {}  # with --eval, each checkpoint's evaluation parameters kept in memory: none is read back
         prep = EvalPrep(a.run, a.robustness, a.extra_curves, coplay=a.coplay,
                         coplay_episodes=a.coplay_episodes) if evaluates else None  # made ready while training runs
@@ -463,12 +472,21 @@ def _dispatch(a) -> int:
             distributed.barrier("done")  # until process 0 has written everything
             return 0
         print(f"trained: {run}")
+        if evaluated:
+            print(f"{run} was evaluated already and keeps the policies of the checkpoints it reports: its results "
+                  f"stand ({Path(run) / 'results.json'})")
+            print((Path(run) / "results.md").read_text())
         if evaluates:
             res = eval_run(run, progress=not a.no_progress, robustness=a.robustness, memory=kept,
                            extra_curves=a.extra_curves, prepared=prep, coplay=a.coplay,
                            coplay_episodes=a.coplay_episodes)
             print((Path(run) / "results.md").read_text())
             del res
+            if a.keep_policies == "reported":
+                gone = prune_policies(run)
+                if gone:
+                    print(f"kept the policies of the reported checkpoints in {Path(run) / 'policies'}; "
+                          f"{len(gone)} others removed (--keep-policies all keeps every one)")
         distributed.barrier("done")
         return 0
     if a.command == "eval":

@@ -149,8 +149,50 @@ def results_current(run_dir: str | Path, every: int = 1) -> bool:
         res = json.loads((run_dir / "results.json").read_text())
     except (OSError, ValueError):
         return False
-    return ("paper_protocol" in res and res.get("selected") is not None
-            and res.get("checkpoints") == _checkpoints_to_evaluate(Policies(run_dir), every))
+    steps = _checkpoints_to_evaluate(Policies(run_dir), every)
+    if res.get("policies_kept") is not None:  # evaluated, then its policies pruned: current until it trains on
+        return every == 1 and "paper_protocol" in res and steps == res["policies_kept"]
+    return "paper_protocol" in res and res.get("selected") is not None and res.get("checkpoints") == steps
+
+
+def prune_policies(run_dir: str | Path) -> list[int]:
+    """After an evaluation: delete the delivered policies of RUN/policies/ that RUN/results.json reports no figure
+    of (``protocol.reported_checkpoints``; the newest is kept too). results.json keeps every checkpoint's evaluation
+    and records the steps kept (``policies_kept``); extra sets, co-play, play and video read those. Returns the
+    steps deleted (none for a run without RUN/policies/: its full training states are never pruned here)."""
+    run_dir = Path(run_dir)
+    res = json.loads((run_dir / "results.json").read_text())
+    store = Policies(run_dir)
+    if store.full or not store.steps():
+        return []
+    keep = set(protocol.reported_checkpoints(res)) | {store.steps()[-1]}
+    if set(store.steps()) <= keep:
+        return []
+    # results.json first: a run stopped in between still has every policy it names, and its next prune ends the job
+    res["policies_kept"] = [st for st in store.steps() if st in keep]
+    (run_dir / "results.json").write_text(json.dumps(res, indent=2))
+    return ckpt.prune(store.mgr, keep)
+
+
+def was_pruned(run_dir: str | Path) -> bool:
+    """Whether RUN was evaluated and its policies then pruned (``prune_policies``): its results.json stands."""
+    try:
+        return json.loads((Path(run_dir) / "results.json").read_text()).get("policies_kept") is not None
+    except (OSError, ValueError):
+        return False
+
+
+def _refuse_pruned(run_dir: Path, store: Policies) -> None:
+    """A run whose evaluated policies were pruned cannot be evaluated at every checkpoint again."""
+    try:
+        res = json.loads((run_dir / "results.json").read_text())
+    except (OSError, ValueError):
+        return
+    if res.get("policies_kept") is not None and set(res.get("checkpoints") or ()) - set(store.steps()):
+        raise RunError(f"{run_dir} keeps the policies of the checkpoints its evaluation reports only "
+                       f"({res['policies_kept']}), and its results.json holds every checkpoint's evaluation: add "
+                       "test sets with --replay-file, redo co-play with --coplay-only, or train it again with "
+                       "--keep-policies all to evaluate every checkpoint anew")
 
 
 def eval_extra_sets(run_dir: str | Path, extra_sets: dict[str, str | Path]) -> dict:
@@ -225,6 +267,7 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     with clock("eval"):
         with part_clock("setup"):
             store = Policies(run_dir)
+            _refuse_pruned(run_dir, store)
             steps = _checkpoints_to_evaluate(store, every)
             if not steps:
                 raise RunError(f"{run_dir} has no checkpoints yet: train it first")
@@ -534,4 +577,5 @@ def _write_eval_outputs(out_dir: Path, s: Setup, res: dict, at: dict, lat, sets:
                              at["interp_success"], s.train_metrics, what=task.name)
 
 
-__all__ = ["eval_run", "eval_coplay", "eval_extra_sets", "EvalPrep", "results_current", "replay_results_dir", "default_ckpt_batch"]
+__all__ = ["eval_run", "eval_coplay", "eval_extra_sets", "EvalPrep", "results_current", "replay_results_dir",
+           "default_ckpt_batch", "prune_policies", "was_pruned"]

@@ -176,6 +176,23 @@ def summarize(task: str, method: str, seeds, per_ckpt: dict[int, dict], strategy
     return res
 
 
+def reported_checkpoints(res: dict) -> list[int]:
+    """The checkpoints a results.json reports figures of: the one selected on validation, the paper protocol's (each
+    column), the last, and each seed's own best (each column)."""
+    out = set()
+    for key in ("selected", "last"):
+        if isinstance(res.get(key), dict):
+            out.add(int(res[key]["checkpoint"]))
+    for col in ("replay", "interpolation"):
+        pp = (res.get("paper_protocol") or {}).get(col)
+        if isinstance(pp, dict):
+            out.add(int(pp["checkpoint"]))
+        best = ((res.get("per_seed_best") or {}).get(col) or {}).get("checkpoint")
+        if isinstance(best, dict):
+            out |= {int(v) for v in best.values()}
+    return sorted(out)
+
+
 def selected_checkpoint(res: dict) -> tuple[int | None, int | None]:
     """(seed, checkpoint) of a results.json for showing one robot (``cogail play``, ``cogail video``): the
     checkpoint selected on validation and, there, the seed with the best validation replay success (ties: the

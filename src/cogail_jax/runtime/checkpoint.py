@@ -211,6 +211,14 @@ def steps(mgr: ocp.CheckpointManager) -> list[int]:
     return sorted(mgr.all_steps())
 
 
+def prune(mgr: ocp.CheckpointManager, keep) -> list[int]:
+    """Delete every checkpoint of ``mgr`` but the steps in ``keep``; returns the steps deleted."""
+    gone = [st for st in steps(mgr) if st not in set(map(int, keep))]
+    for st in gone:
+        mgr.delete(st)
+    return gone
+
+
 def _key(k) -> str:
     for attr in ("name", "key", "idx"):
         if hasattr(k, attr):

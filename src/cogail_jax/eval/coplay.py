@@ -41,7 +41,8 @@ SCRIPTED, PROXY = "scripted", "proxy"
 # the proxy plays this many times the other partners' episodes: its success is rare on some tasks (seqmanip's proxy
 # finishes about 1 episode in 10 with any robot), and a ratio of two such rates is noise at the others' count
 PROXY_EPISODES = 4
-EPISODE_KEYS = ("key", "variation", "proxy", "scripted_robot")  # an episode batch's device arrays
+EPISODE_KEYS = ("key", "variation", "proxy", "scripted_robot", "intent")
+INTENT_SALT = 7_331  # the proxy's strategy in episode i: uniform, from fold_in(episode key, INTENT_SALT)  # an episode batch's device arrays
 TEST_SPLIT = "test"
 
 
@@ -92,16 +93,23 @@ class Proxy(NamedTuple):
 PROXY_LAGS = (1, 3)  # the proxy reads how the observation changed over these many steps
 
 
-def proxy_inputs(hist: jax.Array) -> jax.Array:
+def proxy_inputs(hist: jax.Array, intent: jax.Array) -> jax.Array:
     """What the proxy reads of ``hist`` (..., max(PROXY_LAGS) + 1, D), the last observations, oldest first (the
-    first observation repeated before the episode's start): the newest and its change over each of PROXY_LAGS."""
+    first observation repeated before the episode's start): the newest and its change over each of PROXY_LAGS; and
+    ``intent`` (..., S), the one-hot strategy the human means to follow (S = 0: none)."""
     obs = hist[..., -1, :]
-    return jnp.concatenate([obs, *(obs - hist[..., -1 - k, :] for k in PROXY_LAGS)], -1)
+    return jnp.concatenate([obs, *(obs - hist[..., -1 - k, :] for k in PROXY_LAGS), intent], -1)
 
 
-def proxy_action(proxy: Proxy, hist: jax.Array) -> jax.Array:
-    """The proxy's human action after the observations ``hist`` (see :func:`proxy_inputs`; clipped to [-1, 1])."""
-    return _mlp(proxy, proxy_inputs(hist))
+def proxy_action(proxy: Proxy, hist: jax.Array, intent: jax.Array) -> jax.Array:
+    """The proxy's human action after the observations ``hist``, meaning to follow ``intent`` (see
+    :func:`proxy_inputs`; clipped to [-1, 1])."""
+    return _mlp(proxy, proxy_inputs(hist, intent))
+
+
+def intent_onehot(strategy, strategies: int) -> jax.Array:
+    """One-hot of strategy ids 1..``strategies`` (0, none: all zeros); (..., 0) where ``strategies`` is 0."""
+    return jax.nn.one_hot(jnp.asarray(strategy) - 1, strategies, dtype=jnp.float32)
 
 
 def _mlp(proxy: Proxy, inputs: jax.Array) -> jax.Array:
@@ -132,7 +140,7 @@ def _init_layers(key, sizes):
 
 
 def train_proxy(demos: dict, split: str, steps: int = 2000, seed: int = PROXY_SEED,
-                hidden: tuple = PROXY_HIDDEN, file: str | None = None) -> tuple[Proxy, dict]:
+                hidden: tuple = PROXY_HIDDEN, file: str | None = None, strategies: int = 0) -> tuple[Proxy, dict]:
     """Behaviour-clone the human of the TEST split: an MLP (:func:`proxy_inputs`) -> a_H (mean squared error on every valid step,
     full batch Adam, ``steps`` updates in one jitted ``lax.scan``, initial parameters from ``PRNGKey(seed)``; so
     the same data give the same proxy). ``demos``: the split as the evaluation loads it
@@ -153,12 +161,17 @@ def train_proxy(demos: dict, split: str, steps: int = 2000, seed: int = PROXY_SE
     H = max(PROXY_LAGS)
     padded = np.concatenate([np.repeat(obs[:, :1], H, 1), obs], 1)  # the first observation before the start
     hist = np.stack([padded[:, H - j:H - j + obs.shape[1]] for j in range(H, -1, -1)], 2)  # (N, T, H + 1, D)
-    x, y = np.asarray(proxy_inputs(jnp.asarray(hist)))[valid], ah[valid]
+    strategy = np.asarray(demos.get("strategy", np.zeros(len(length))), np.int32) if strategies else \
+        np.zeros(len(length), np.int32)
+    intent = np.repeat(np.asarray(intent_onehot(strategy, strategies))[:, None], obs.shape[1], 1)
+    x, y = np.asarray(proxy_inputs(jnp.asarray(hist), jnp.asarray(intent)))[valid], ah[valid]
     if not len(x):
         raise CoplayError("the test split has no steps to train the human proxy on: generate or pass a test split "
                           "with episodes")
     mean = x.mean(0)
     std = np.maximum(x.std(0), 1e-3)
+    if strategies:  # the intent read as given
+        mean[-strategies:], std[-strategies:] = 0.0, 1.0
     layers = _init_layers(jax.random.PRNGKey(seed), (x.shape[1], *hidden, y.shape[1]))
     opt = optax.adam(PROXY_LR)
 
@@ -180,7 +193,7 @@ def train_proxy(demos: dict, split: str, steps: int = 2000, seed: int = PROXY_SE
     losses = np.asarray(losses)
     info = {"split": split, "file": None if file is None else str(file), "episodes": int(len(length)),
             "samples": int(len(x)), "digest": data_digest(obs, ah, length), "steps": int(steps),
-            "hidden": list(hidden), "loss": float(final),
+            "hidden": list(hidden), "strategies": int(strategies), "loss": float(final),
             "loss_curve": [float(losses[min(int(round(i * (steps - 1) / 10)), steps - 1)]) for i in range(11)]}
     return Proxy(layers, jnp.asarray(mean), jnp.asarray(std)), info
 
@@ -197,7 +210,10 @@ def episode_batch(env, names: list[str], episodes: int, robots: tuple = ("learne
     most = episodes * (PROXY_EPISODES if PROXY in names else 1)
     keys = np.asarray(jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(COPLAY_SEED), i))(
         jnp.arange(first, first + most)))
-    rows = {"key": [], "variation": [], "proxy": [], "scripted_robot": [], "partner": [], "robot": []}
+    S = int(env.num_strategies)
+    intent = np.asarray(jax.vmap(lambda k: jax.random.randint(jax.random.fold_in(k, INTENT_SALT), (), 1, S + 1))(
+        jnp.asarray(keys))) if S else np.zeros(len(keys), np.int32)
+    rows = {"key": [], "variation": [], "proxy": [], "scripted_robot": [], "intent": [], "partner": [], "robot": []}
     for robot in robots:
         for name in names:
             n = episodes * (PROXY_EPISODES if name == PROXY else 1)
@@ -206,6 +222,7 @@ def episode_batch(env, names: list[str], episodes: int, robots: tuple = ("learne
                                              np.int32))
             rows["proxy"].append(np.full(n, name == PROXY))
             rows["scripted_robot"].append(np.full(n, robot == "scripted"))
+            rows["intent"].append(intent[:n] if name == PROXY else np.zeros(n, np.int32))
             rows["partner"] += [name] * n
             rows["robot"] += [robot] * n
     out = {k: np.concatenate(v) for k, v in rows.items() if k not in ("partner", "robot")}
@@ -257,7 +274,8 @@ def make_coplay_fn(env, cfg=None, nets=None):
         if human_act is not None:
             ts_h, a_h = human_act(env, ts_h, state, k_h)
         if proxy is not None:
-            a_h = jnp.where(ep["proxy"], proxy_action(proxy, hist), a_h)
+            S = proxy.mean.shape[-1] - (len(PROXY_LAGS) + 1) * hist.shape[-1]  # the proxy's intent width
+            a_h = jnp.where(ep["proxy"], proxy_action(proxy, hist, intent_onehot(ep["intent"], S)), a_h)
         a_r = jnp.zeros((env.robot_action_size,), jnp.float32)
         if learned:
             z = psi_code(params, norm, hist[-(K + 1):], prev_ah)
@@ -358,7 +376,8 @@ def prepare(s, episodes: int | None = None, proxy_steps: int | None = None) -> P
                           "test split (need_heldout=True)")
     episodes = int(episodes or default_episodes())
     proxy_steps = int(proxy_steps or (500 if jax.default_backend() == "cpu" else 4000))
-    proxy, proxy_info = train_proxy(s.heldout, TEST_SPLIT, steps=proxy_steps, file=(s.files or {}).get("test"))
+    proxy, proxy_info = train_proxy(s.heldout, TEST_SPLIT, steps=proxy_steps, file=(s.files or {}).get("test"),
+                                    strategies=env.num_strategies)
     names, scripted = partners(env), has_scripted_robot(env)
     batch = episode_batch(env, names, episodes, ("learned", "scripted") if scripted else ("learned",))
     return Prepared(proxy, proxy_info, names, scripted, episodes, batch, make_coplay_fn(env, cfg, s.nets))

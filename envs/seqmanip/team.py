@@ -107,6 +107,9 @@ NUM_PAUSES, PAUSE_START, PAUSE_LEN = 2, (15, 380), (20, 41)
 NOISE_FACTOR = 3.0
 DECOY_STEPS = (35, 61)
 YAW_RANGE, YAW_HELD = (0.0, 0.7), (0.7, 1.05)   # |yaw| of the held bar: training range, held-out slice
+# the training split's bar yaw and heights drawn towards the edges of their ranges (the density of |yaw| and of the
+# height grows as (x / range) ** (EDGE - 1)): 1 is uniform
+EDGE_YAW, EDGE_Z = 2.0, 2.0
 SPOT_LO, SPOT_HI, SPOT_Z_HELD = (-0.20, -0.08, 0.12), (0.02, 0.01, 0.26), (0.26, 0.31)
 WAIT_LO, WAIT_HI, WAIT_Z_HELD = (-0.09, -0.23, 0.18), (0.04, -0.14, 0.25), (0.25, 0.30)
 POSE_SALT = 4_242
@@ -222,12 +225,19 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
     vmax, amax, gain = (jnp.where(fast, x.at[1].set(top), x) for x, top in ((vmax, 0.85), (amax, 0.12), (gain, 0.22)))
     delay, react = jnp.where(fast, delay.at[1].set(3), delay), jnp.where(fast, react.at[1].set(2), react)
     follows = following(variation) & (v == CHANGE_OF_MIND)
+    def edge(x, lo, hi, power):  # a uniform draw in [lo, hi] moved towards hi (training-split episodes only)
+        return jnp.where(fast, lo + (hi - lo) * jnp.clip((x - lo) / (hi - lo), 0.0, 1.0) ** (1.0 / power), x)
+
+    spot = jnp.where(held, spot, spot.at[2].set(edge(spot[2], SPOT_LO[2], SPOT_HI[2], EDGE_Z)))
+    wait_h = jnp.where(held, wait_h, wait_h.at[2].set(edge(wait_h[2], WAIT_LO[2], WAIT_HI[2], EDGE_Z)))
+    yaw = slice_draw(ks[4], held & held_yaw, (-YAW_RANGE[1], YAW_RANGE[1]), YAW_HELD, symmetric=True)
+    yaw = jnp.where(held, yaw, jnp.sign(yaw) * edge(jnp.abs(yaw), 0.0, YAW_RANGE[1], EDGE_YAW))
     ts = TeamState(
         strategy=jnp.stack([strategy, jnp.where(follows, 3 - strategy, strategy)]),
         spot=spot,
         wait_pt=jnp.stack([wait_h,
                            u(ks[3], [0.04, 0.13, 0.24], [0.10, 0.17, 0.29], (3,))]),
-        yaw=slice_draw(ks[4], held & held_yaw, (-YAW_RANGE[1], YAW_RANGE[1]), YAW_HELD, symmetric=True),
+        yaw=yaw,
         drop=u(ks[5], [0.047, -0.03, 0.01, -0.1], [0.055, 0.03, 0.03, 0.1], (4,)),
         open_amt=u(ks[6], 0.125, 0.155),
         handle_y=jnp.stack([u(ks[7], -0.04, -0.005), u(ks[8], 0.005, 0.04)]),

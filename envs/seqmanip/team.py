@@ -109,7 +109,7 @@ DECOY_STEPS = (35, 61)
 YAW_RANGE, YAW_HELD = (0.0, 0.7), (0.7, 1.05)   # |yaw| of the held bar: training range, held-out slice
 # the training split's bar yaw and heights drawn towards the edges of their ranges (the density of |yaw| and of the
 # height grows as (x / range) ** (EDGE - 1)): 1 is uniform
-EDGE_YAW, EDGE_Z = 2.0, 2.0
+EDGE_YAW, EDGE_Z = 2.0, 1.0
 SPOT_LO, SPOT_HI, SPOT_Z_HELD = (-0.20, -0.08, 0.12), (0.02, 0.01, 0.26), (0.26, 0.31)
 WAIT_LO, WAIT_HI, WAIT_Z_HELD = (-0.09, -0.23, 0.18), (0.04, -0.14, 0.25), (0.25, 0.30)
 POSE_SALT = 4_242

@@ -2,6 +2,7 @@ import json
 import subprocess
 import sys
 
+import h5py
 import numpy as np
 import pytest
 from cogail_envs import get_task
@@ -25,7 +26,14 @@ def test_demos_command(tmp_path):
     out = tmp_path / "d.hdf5"
     r = run("demos", "--task", "fetchq", "--num", "8", "--mix", "D1", "--seed", "0", "--out", str(out))
     assert r.returncode == 0, r.stderr
-    assert out.exists() and "wrote 8 fetchq demonstrations" in r.stdout
+    assert "wrote 8 fetchq demonstrations" in r.stdout
+    import cogail_envs
+    from cogail_jax.data import io as data
+
+    demos = data.load_demos(out, cogail_envs.make_env("fetchq"))
+    assert demos.num == 8
+    with h5py.File(out) as f:
+        assert f.attrs["mixture"] == "D1"
 
 
 @pytest.mark.parametrize("args,needle", [
@@ -65,11 +73,15 @@ def test_a_device_out_of_memory_is_one_clear_line(error, answered, monkeypatch, 
     assert len(err) == 1 and "XLA_PYTHON_CLIENT_MEM_FRACTION" in err[0] and "--resume" in err[0]
 
 
-@pytest.mark.parametrize("args", [["train", "--run", "x", "--method", "nope"], ["train", "--run", "x", "--seeds", "a,b"],
-                                  ["train", "--run", "x", "--num-envs", "0"]])
-def test_bad_flags(args):
-    r = run(*args)
-    assert r.returncode == 2 and "Traceback" not in r.stderr
+@pytest.mark.parametrize("args, why", [
+    (["--method", "nope"], "invalid choice: 'nope'"),
+    (["--seeds", "a,b"], "--seeds must be comma-separated integers"),
+    (["--num-envs", "0"], "expected a positive integer, got '0'"),
+])
+def test_bad_flags(args, why):
+    """A bad flag value stops argparse with its own message (a run that is otherwise valid: a task given)."""
+    r = run("train", "--task", "fetchq", "--run", "x", *args)
+    assert r.returncode == 2 and "Traceback" not in r.stderr and why in r.stderr, r.stderr
 
 
 def test_bench_tiny_writes_json(tmp_path, monkeypatch):

@@ -68,10 +68,11 @@ def test_tables_only_rewrites_the_readme_block(tmp_path):
         paper.main(["--out", str(out), "--tables-only", "--readme", str(readme)])
 
 
-def test_paper_help():
+def test_paper_help(capsys):
     with pytest.raises(SystemExit) as e:
         paper.main(["--help"])
-    assert e.value.code == 0
+    out = capsys.readouterr().out
+    assert e.value.code == 0 and "usage:" in out and "--tables-only" in out and "--merge" in out
 
 
 def test_merge_adds_side_by_side_runs_to_the_tables(tmp_path):
@@ -121,7 +122,10 @@ def test_runs_are_cached_by_their_full_resolved_config(tmp_path, monkeypatch, ca
     other = paper.resolve_config("fetchq", "cogail", "uniform", [300, 400, 500], {"lr": 1e-4})
     assert paper.run_dir(tmp_path, base) != paper.run_dir(tmp_path, other)
     assert paper.run_dir(tmp_path, base).name.startswith("fetchq-cogail-uniform-")
-    assert paper.config_hash(base) == paper.config_hash(base.replace())
+    # a run's hash survives its config.json, and a default given explicitly is the same config
+    assert paper.config_hash(base) == paper.config_hash(type(base).from_dict(json.loads(base.to_json())))
+    assert paper.config_hash(base) == paper.config_hash(
+        paper.resolve_config("fetchq", "cogail", "uniform", [300, 400, 500], {"lr": base.lr}))
     assert paper.parse_sets(["reward_norm=false"]) == {"reward_norm": False}
 
 

@@ -153,6 +153,8 @@ def test_eval_replays_the_trials(server, run_dir, capsys):
                      "--no-robustness"]) == 0
     res = json.loads((run_dir / "replay-trials" / "results.json").read_text())
     assert set(res["replay_success"]["per_seed"]) == {"3"}
+    with h5py.File(trials) as f:  # every recorded trial replayed, from that file
+        assert res["episodes"] == len(f["data"]) > 0 and res["file"] == str(trials)
     assert "replay against" in capsys.readouterr().out
 
 

@@ -142,9 +142,10 @@ def test_same_seed_same_metrics(tiny_cfg, fetchq):
 def test_config_errors(tiny_cfg):
     from cogail_jax.algo.config import ConfigError
 
-    for bad in (dict(task="nope"), dict(method="nope"), dict(total_steps=0), dict(num_envs=-1),
-                dict(checkpoint_every=0), dict(seeds=())):
-        with pytest.raises(ConfigError):
+    for bad, why in ((dict(task="nope"), "unknown task 'nope'"), (dict(method="nope"), "unknown method 'nope'"),
+                     (dict(total_steps=0), "total-steps must be positive"), (dict(num_envs=-1), "num-envs must be"),
+                     (dict(checkpoint_every=0), "checkpoint-every must be positive"), (dict(seeds=()), "no seeds")):
+        with pytest.raises(ConfigError, match=why):
             tiny_cfg.replace(**bad).validate()
 
 

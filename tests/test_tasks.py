@@ -32,7 +32,9 @@ def contract(request):
     env = task.make_env()
     reset_from, step = jax.jit(env.reset_from), jax.jit(env.step)
     init = env.sample_init(jax.random.PRNGKey(0))
-    s0, s0b = reset_from(init), reset_from(init)
+    # reset(key) starts where reset_from(its init) does: replay restarts a recorded episode from its init
+    s0, s0b = reset_from(init), jax.jit(env.reset)(jax.random.PRNGKey(0))
+    other = reset_from(env.sample_init(jax.random.PRNGKey(2)))
     a = jnp.zeros(env.action_size)
     s1 = step(s0, a)
     late = step(s0.replace(info={**s0.info, "t": s0.info["t"] + env.max_episode_steps - 1}), a)
@@ -41,7 +43,7 @@ def contract(request):
     ref, got = s1, env.checkpoint_state(s1)
     for x in acts:
         ref, got = step(ref, x), step(got, x)
-    out = jax.device_get((init, s0, s0b, s1, late, jax.jit(env.classify_strategy)(s1.metrics), (ref, got)))
+    out = jax.device_get((init, s0, (s0b, other), s1, late, jax.jit(env.classify_strategy)(s1.metrics), (ref, got)))
     yield task, env, out
     monkey.undo()
 
@@ -67,9 +69,12 @@ def test_env_contract_checkpoint_state_steps_to_the_same_bits(contract):
 
 
 def test_env_contract_reset_from_reproduces_the_start(contract):
-    _, _, (_, s0, s0b, *_) = contract
+    """reset(key) and reset_from(the init it samples) start in the same state (two programs: equal to float32
+    round-off), and another init starts elsewhere (reset_from reads its init)."""
+    _, _, (_, s0, (s0b, other), *_) = contract
     for x, y in zip(jax.tree.leaves(s0), jax.tree.leaves(s0b)):
-        np.testing.assert_array_equal(x, y)
+        np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-6)
+    assert not np.allclose(s0.obs, other.obs)
 
 
 def test_env_contract_time_limit_is_a_truncation(contract):
@@ -100,7 +105,10 @@ def test_task_settings_resolve(contract):
 
     task, env, _ = contract
     cfg = resolve(task.name if task.name in builtin_task_names() else EXAMPLE)
-    assert cfg.task and all(task.split_size(s) > 0 for s in ("train", "validation", "test"))
+    own = {k: v for k, v in task.default_config().items() if k not in ("task", "budgets")}
+    norm = lambda v: tuple(v) if isinstance(v, (list, tuple)) else v  # noqa: E731
+    assert own and all(norm(getattr(cfg, k)) == norm(v) for k, v in own.items()), own
+    assert all(task.split_size(s) > 0 for s in ("train", "validation", "test"))
     assert task.team is None or isinstance(task.team, Team)
 
 

@@ -69,6 +69,23 @@ def test_slice_is_an_evaluation_set_with_its_own_seeds():
     assert not held & seeds
 
 
+def test_the_validation_slice_is_as_large_as_the_validation_split(monkeypatch):
+    """A run's sets ask for the validation split's held-out slice at the validation split's size (settings are chosen
+    on it beside the validation replay) and for the test's varied humans at the test split's size."""
+    from cogail_jax.data import io, sets, varied
+
+    asked = []
+    monkeypatch.setattr(varied, "ensure_robustness_sets", lambda env, mix, split="test", num=0, variations=(),
+                        **kw: asked.append((split, num, tuple(variations))) or {})
+    for task in HELD_TASKS:
+        asked.clear()
+        sets.robustness_paths(TrainConfig(task=task), env=cogail_envs.make_env(task))
+        val, test = io.default_count(task, "validation"), io.default_count(task, "test")
+        assert val > test
+        assert asked == [("test", 0, protocol_variations(cogail_envs.make_env(task))),
+                         ("validation", val, ("pose_heldout",))], (task, asked)
+
+
 @pytest.mark.parametrize("task", HELD_TASKS)
 def test_object_frame_features(task):
     """The features are the env's last 22 dims; ``obs_frame="world"`` normalises them (only them) to 0, "object" the

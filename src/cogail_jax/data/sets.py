@@ -57,8 +57,9 @@ def split_path(cfg, split: str, make: bool = False, env=None, verbose: bool = Tr
 def robustness_paths(cfg, make: bool = False, env=None, verbose: bool = True) -> dict[str, Path]:
     """``{"robust-<variation>": file}`` of the run's varied humans (the test split's), and where the task's team
     draws a held-out pose slice, ``"validation-robust-pose_heldout"``: the validation split's episodes of that
-    slice (to choose settings by, as the test's are reported); {} where the task's team has no variations (or no
-    team)."""
+    slice, as many as the validation split has (settings are chosen by it beside the validation replay, so it is
+    read on as many episodes; the test's, the size of the test split, are reported); {} where the task's team has
+    no variations (or no team)."""
     team = get_task(cfg.task).team
     if team is None or not team.variations:
         return {}
@@ -68,7 +69,7 @@ def robustness_paths(cfg, make: bool = False, env=None, verbose: bool = True) ->
     held = [v for v in names if v == HELD_OUT]
     if held:
         val = varied.ensure_robustness_sets(env, mix=cfg.mix, split=VALIDATION, variations=held, verbose=verbose,
-                                            make=make)
+                                            make=make, num=io.default_count(env.name, VALIDATION))
         out.update({f"{VALIDATION}-{k}": v for k, v in val.items()})
     return out
 

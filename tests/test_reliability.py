@@ -149,6 +149,23 @@ def test_config_errors(tiny_cfg):
             tiny_cfg.replace(**bad).validate()
 
 
+def test_a_removed_field_at_its_old_value_still_loads_and_another_value_stops(tiny_cfg, tmp_path):
+    """A run's config.json from before a field was removed (``config.REMOVED``) loads where the field holds the value
+    every run had; another value stops with a ConfigError naming the field."""
+    from cogail_jax.algo.config import REMOVED, ConfigError, TrainConfig
+
+    d = json.loads(tiny_cfg.to_json())
+    path = tmp_path / "config.json"
+    path.write_text(json.dumps({**d, **REMOVED}))
+    assert TrainConfig.load(path) == tiny_cfg
+    for key in REMOVED:
+        path.write_text(json.dumps({**d, key: "psi"}))
+        with pytest.raises(ConfigError, match=key):
+            TrainConfig.load(path)
+    with pytest.raises(ConfigError, match="unknown config keys"):
+        TrainConfig.from_dict({**d, "no_such_field": 1})
+
+
 def test_max_episode_steps_sets_the_time_limit_of_training_and_evaluation(tiny_cfg):
     """``max_episode_steps`` builds the task with that time limit (training and evaluation use ``Setup.env``);
     0 keeps the task's own; a negative value is a config error."""

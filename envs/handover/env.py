@@ -86,26 +86,21 @@ ROBOT = mc.GripperSpec("robot", ROBOT_BASE, 180.0, (-0.35, -0.05, -0.234, -0.6, 
                        (0.35, 0.45, 0.20, 0.6, 0.6, 1.6), rgba=(0.9, 0.35, 0.3, 1.0))
 
 
-def handover_xml(iterations: int = mc.ITERATIONS, ls_iterations: int = mc.LS_ITERATIONS,
-                 finger_condim: int = mc.FINGER_CONDIM, timestep: float = mc.TIMESTEP) -> str:
-    """The HR-Handover MJCF (two grippers, a table and the bar)."""
+def handover_xml() -> str:
+    """The HR-Handover MJCF (two grippers, a table and the bar), with :mod:`mjx_common`'s solver settings."""
     obj = mc.free_box_xml(OBJ, (*OBJ_START, OBJ_HALF[2]), OBJ_HALF, OBJ_MASS, rgba=(0.95, 0.75, 0.1, 1.0))
-    contact = (mc.gripper_pairs_xml(HUMAN, OBJ, finger_condim=finger_condim)
-               + mc.gripper_pairs_xml(ROBOT, OBJ, finger_condim=finger_condim)
+    contact = (mc.gripper_pairs_xml(HUMAN, OBJ) + mc.gripper_pairs_xml(ROBOT, OBJ)
                + mc.pair_xml(OBJ, "table", 0.8))
     sensor = mc.gripper_sensors_xml(HUMAN, OBJ) + mc.gripper_sensors_xml(ROBOT, OBJ)
-    return mc.scene_xml("handover", [HUMAN, ROBOT], worldbody=obj, contact=contact, sensor=sensor,
-                        iterations=iterations, ls_iterations=ls_iterations, timestep=timestep)
+    return mc.scene_xml("handover", [HUMAN, ROBOT], worldbody=obj, contact=contact, sensor=sensor)
 
 
 class Handover(CollabEnv):
     """HR-Handover with brax's ``Env`` API (``pipeline_state`` is ``mjx.Data``).
 
-    ``iterations`` / ``ls_iterations``: Newton solver settings; ``n_substeps``: physics steps per env step;
-    ``timestep``: physics timestep (s); ``finger_condim``: 3 (sliding friction only) or 4 (plus torsional
-    friction) for the finger-pad pairs. Defaults: :data:`mjx_common.ITERATIONS` / ``LS_ITERATIONS`` /
-    ``N_SUBSTEPS`` / ``TIMESTEP`` / ``FINGER_CONDIM`` (2 / 4 / 2 / 0.01 s / 3; the settings before were
-    4 / 8 / 4 / 0.005 s / 4, ~2.5-3x more expensive on CPU with the same scripted-team results).
+    Physics: :mod:`mjx_common`'s Newton solver settings, substeps, timestep and finger-pad contacts
+    (``ITERATIONS`` / ``LS_ITERATIONS`` / ``N_SUBSTEPS`` / ``TIMESTEP`` / ``FINGER_CONDIM``: 2 / 4 / 2 / 0.01 s / 3; the
+    settings before were 4 / 8 / 4 / 0.005 s / 4, ~2.5-3x more expensive with the same scripted-team results).
     """
 
     name = "handover"
@@ -115,19 +110,16 @@ class Handover(CollabEnv):
     init_size = 10
     strategy_names = ("left", "middle", "right")
 
-    def __init__(self, max_episode_steps: int = 300, auto_release: bool = True,
-                 iterations: int = mc.ITERATIONS, ls_iterations: int = mc.LS_ITERATIONS,
-                 n_substeps: int = mc.N_SUBSTEPS, finger_condim: int = mc.FINGER_CONDIM,
-                 timestep: float = mc.TIMESTEP, robot_start_yaw: float = 0.0, robot_start_z: float = 0.03):
+    def __init__(self, max_episode_steps: int = 300, auto_release: bool = True, robot_start_yaw: float = 0.0,
+                 robot_start_z: float = 0.03):
         self.max_episode_steps = int(max_episode_steps)
         self.init_lo = INIT_LO.copy()
         self.init_lo[8], self.init_lo[9] = -float(robot_start_z), -float(robot_start_yaw)
         if (float(robot_start_yaw), float(robot_start_z)) != (0.0, 0.03):  # another start: another dataset version
             self.spec_tag = f"{type(self).spec_tag}-robot-start-{float(robot_start_yaw):g}-{float(robot_start_z):g}"
         self.auto_release = bool(auto_release)
-        self.n_substeps = int(n_substeps)
-        self.timestep = float(timestep)
-        self.xml = handover_xml(iterations, ls_iterations, finger_condim, self.timestep)
+        self.n_substeps, self.timestep = mc.N_SUBSTEPS, mc.TIMESTEP
+        self.xml = handover_xml()
         self.mj_model, self.mx = mc.build(self.xml)
         m = self.mj_model
         self.human = mc.Gripper.from_model(m, "human", [OBJ])

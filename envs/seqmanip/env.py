@@ -140,10 +140,9 @@ def _box(half, pos, rgba: str, name: str = "") -> str:
     return f'<geom {nm}type="box" size="{_f(half)}" pos="{_f(pos)}" rgba="{rgba}"/>'
 
 
-def seqmanip_xml(iterations: int = mc.ITERATIONS, ls_iterations: int = mc.LS_ITERATIONS,
-                 side_walls: bool = True, finger_condim: int = mc.FINGER_CONDIM,
-                 timestep: float = mc.TIMESTEP) -> str:
-    """The HR-SeqManip MJCF (two grippers, the table, the cabinet with its drawer, the bar)."""
+def seqmanip_xml() -> str:
+    """The HR-SeqManip MJCF (two grippers, the table, the cabinet with its drawer, the bar), with
+    :mod:`mjx_common`'s solver settings."""
     wood, dark, metal = "0.55 0.38 0.22 1", "0.45 0.3 0.18 1", "0.7 0.7 0.72 1"
     ww, hz = WALL, WALL_H / 2
     face = DR_DX + 2 * ww  # drawer face (outer side of the front wall), behind the body origin
@@ -171,31 +170,24 @@ def seqmanip_xml(iterations: int = mc.ITERATIONS, ls_iterations: int = mc.LS_ITE
         _box((0.01, cy, CAB_TOP_Z / 2), (cx1 - 0.01, 0, CAB_TOP_Z / 2), wood),
     ] + [_box((cxh, 0.01, CAB_TOP_Z / 2), (cxc, sy * (cy - 0.01), CAB_TOP_Z / 2), wood) for sy in (-1, 1)]
     obj = mc.free_box_xml(OBJ, (*OBJ_START, OBJ_HALF[2]), OBJ_HALF, OBJ_MASS, rgba=(0.95, 0.75, 0.1, 1.0))
-    walls = DRAWER_GEOMS if side_walls else DRAWER_GEOMS[:3]
-    fc = finger_condim
-    contact = (mc.gripper_pairs_xml(HUMAN, OBJ, finger_condim=fc)
-               + mc.gripper_pairs_xml(ROBOT, OBJ, finger_condim=fc)
-               + mc.gripper_pairs_xml(HUMAN, "handle", palm=False, finger_condim=fc)
-               + mc.gripper_pairs_xml(ROBOT, "handle", palm=False, finger_condim=fc)
+    contact = (mc.gripper_pairs_xml(HUMAN, OBJ) + mc.gripper_pairs_xml(ROBOT, OBJ)
+               + mc.gripper_pairs_xml(HUMAN, "handle", palm=False)
+               + mc.gripper_pairs_xml(ROBOT, "handle", palm=False)
                + mc.pair_xml(OBJ, "table", 0.8) + mc.pair_xml(OBJ, "drawer_floor", 0.8)
                # walls and the cabinet top only need to stop the object: frictionless (condim 1, fewer rows)
-               + "".join(mc.pair_xml(OBJ, g, 0.0, condim=1) for g in walls[1:] + ("cab_top",)))
+               + "".join(mc.pair_xml(OBJ, g, 0.0, condim=1) for g in DRAWER_GEOMS[1:] + ("cab_top",)))
     sensor = "".join(mc.gripper_sensors_xml(g, geom) for g in (HUMAN, ROBOT) for geom in (OBJ, "handle"))
     cam = mc.camera_xml("drawer", (-0.45, -0.60, 0.50), (0.05, -0.03, 0.10))  # the task's default view
     world = cam + drawer + "".join(cab) + obj
-    return mc.scene_xml("seqmanip", [HUMAN, ROBOT], worldbody=world, contact=contact, sensor=sensor,
-                        iterations=iterations, ls_iterations=ls_iterations, timestep=timestep)
+    return mc.scene_xml("seqmanip", [HUMAN, ROBOT], worldbody=world, contact=contact, sensor=sensor)
 
 
 class SeqManip(CollabEnv):
     """HR-SeqManip with brax's ``Env`` API (``pipeline_state`` is ``mjx.Data``).
 
-    ``iterations`` / ``ls_iterations``: Newton solver settings; ``n_substeps``: physics steps per env
-    step; ``timestep``: physics timestep (s); ``side_walls=False`` drops the two drawer side walls' contact
-    pairs (8 fewer contacts; the scripted team does not need them); ``finger_condim``: 3 (sliding only,
-    default) or 4 (sliding + torsional friction) for the finger-pad pairs (object and handle). Defaults:
-    :data:`mjx_common.ITERATIONS` / ``LS_ITERATIONS`` / ``N_SUBSTEPS`` / ``TIMESTEP`` / ``FINGER_CONDIM``
-    (2 / 4 / 2 / 0.01 s / 3).
+    Physics: :mod:`mjx_common`'s Newton solver settings, substeps, timestep and finger-pad contacts (object and
+    handle): ``ITERATIONS`` / ``LS_ITERATIONS`` / ``N_SUBSTEPS`` / ``TIMESTEP`` / ``FINGER_CONDIM`` (2 / 4 / 2 /
+    0.01 s / 3).
     """
 
     name = "seqmanip"
@@ -205,10 +197,7 @@ class SeqManip(CollabEnv):
     init_size = 10
     strategy_names = ("human-hands-over", "robot-opens")
 
-    def __init__(self, max_episode_steps: int = 600, iterations: int = mc.ITERATIONS,
-                 ls_iterations: int = mc.LS_ITERATIONS, n_substeps: int = mc.N_SUBSTEPS,
-                 side_walls: bool = True, finger_condim: int = mc.FINGER_CONDIM,
-                 timestep: float = mc.TIMESTEP, robot_start_yaw: float = 0.0, robot_start_z: float = 0.03):
+    def __init__(self, max_episode_steps: int = 600, robot_start_yaw: float = 0.0, robot_start_z: float = 0.03):
         import mujoco
         from mujoco import mjx
 
@@ -217,9 +206,8 @@ class SeqManip(CollabEnv):
         self.init_lo[8], self.init_lo[9] = -float(robot_start_z), -float(robot_start_yaw)
         if (float(robot_start_yaw), float(robot_start_z)) != (0.0, 0.03):  # another start: another dataset version
             self.spec_tag = f"{type(self).spec_tag}-robot-start-{float(robot_start_yaw):g}-{float(robot_start_z):g}"
-        self.n_substeps = int(n_substeps)
-        self.timestep = float(timestep)
-        self.xml = seqmanip_xml(iterations, ls_iterations, side_walls, finger_condim, self.timestep)
+        self.n_substeps, self.timestep = mc.N_SUBSTEPS, mc.TIMESTEP
+        self.xml = seqmanip_xml()
         self.mj_model, self.mx = mc.build(self.xml)
         m = self.mj_model
         self.human = mc.Gripper.from_model(m, "human", [OBJ, "handle"])

@@ -104,8 +104,6 @@ class TrainConfig:
     lambda_z: float = 0.05  # the paper gives no value; 1.0 erodes interpolation (README)
     lambda_a: float = 1.0
     diversity_coef: float = 0.1  # DIAYN: weight of the diversity reward
-    la_codes: str = "demo"  # L_a's code: "psi" (the paper: psi of each step's history) or "demo" (one learned
-    # code per demonstration, psi regressing it; keeps the code constant along an episode as in the rollouts)
     lambda_r: float = 1.0  # our addition: robot-action reconstruction on expert data with psi's code (0 = paper;
     #   without L_a, where psi never learns the demonstrations' codes, with each demonstration's code from BC
     #   pre-training, held fixed: losses.expert_code)
@@ -118,10 +116,6 @@ class TrainConfig:
     # behaviour-cloning pre-training of the co-policy (and of psi, in presets with L_a) on the demonstrations
     bc_steps: int = 0
     bc_lr: float = 1e-3
-    # the co-policy's code in BC: "demo": one learned code per demonstration (starting from the demos'
-    # trajectories' 2 principal components, rank-spread over the code square: similar demos get nearby codes);
-    # "psi": psi's code of each step
-    bc_codes: str = "demo"
     # evaluation
     eval_codes: int = 100
 
@@ -234,10 +228,15 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, d: dict) -> "TrainConfig":
         names = {f.name for f in dataclasses.fields(cls)}
+        d = dict(d)
+        for key, value in REMOVED.items():  # a run's config.json from before a field was removed
+            if key in d and (got := d.pop(key)) != value:
+                raise ConfigError(f"config field {key} was removed (it measured no gain; docs/notes.md), and this "
+                                  f"config sets it to {got!r}: drop it, or use a checkout from before its removal "
+                                  f"for a run trained with it")
         unknown = set(d) - names
         if unknown:
             raise ConfigError(f"unknown config keys {sorted(unknown)}")
-        d = dict(d)
         if "seeds" in d:
             d["seeds"] = tuple(int(s) for s in d["seeds"])
         return cls(**d)
@@ -245,6 +244,11 @@ class TrainConfig:
     @classmethod
     def load(cls, path: str | Path) -> "TrainConfig":
         return cls.from_dict(json.loads(Path(path).read_text()))
+
+
+# Fields removed after they measured no gain (docs/notes.md), with the value every run had unless asked otherwise: a
+# run's config.json holding that value still loads; another value stops with what to do.
+REMOVED = {"la_codes": "demo", "bc_codes": "demo"}
 
 
 # The fields that only the training update reads (its losses, optimiser steps and schedule): the programs that do not

@@ -131,15 +131,13 @@ def code_spread(z):
     return jnp.sum(jnp.mean(z, 0) ** 2) + jnp.sum((jnp.var(z, 0) - 1.0 / 3.0) ** 2)
 
 
-def bc_loss(psi_apply, actor_apply, params, batch, use_code, codes="demo", target="both", train_psi=True):
+def bc_loss(psi_apply, actor_apply, params, batch, use_code, target="both", train_psi=True):
     """Behaviour cloning of the agents' actions (``target``: "both", "human" or "robot").
 
-    ``codes="demo"``: each demonstration has a learned code (``params["codes"]``, tanh-squashed) that the
-    co-policy acts on for the whole demonstration, and the codes' moments are pulled to the prior's
-    (U(-1, 1)^2) so that the prior's codes are in distribution; with ``train_psi``, psi also regresses the
-    demonstration's code from the history.
-    ``codes="psi"``: the co-policy acts on psi's code of each step's history (through stop_gradient unless
-    ``train_psi``).
+    Each demonstration has a learned code (``params["codes"]``, tanh-squashed) that the co-policy acts on for the
+    whole demonstration, and the codes' moments are pulled to the prior's (U(-1, 1)^2) so that the prior's codes
+    are in distribution; with ``train_psi``, psi also regresses the demonstration's code from the history.
+    Without ``use_code`` the co-policy acts on z = 0.
     """
     width = batch["ah"].shape[-1]
     if target == "both":
@@ -153,25 +151,19 @@ def bc_loss(psi_apply, actor_apply, params, batch, use_code, codes="demo", targe
     if not use_code:  # the co-policy acts on z = 0
         mean, _ = actor_apply(params["actor"], batch["obs"], jnp.zeros_like(z_psi))
         return err(mean)
-    if codes == "demo":
-        all_codes = jnp.tanh(params["codes"])
-        z = all_codes[batch["demo"]]
-        mean, _ = actor_apply(params["actor"], batch["obs"], z)
-        loss = err(mean)
-        if train_psi:
-            loss = loss + jnp.mean(jnp.sum((z_psi - jax.lax.stop_gradient(z)) ** 2, -1))
-        return loss + 10.0 * code_spread(all_codes)
-    mean, _ = actor_apply(params["actor"], batch["obs"], z_psi if train_psi else jax.lax.stop_gradient(z_psi))
-    return err(mean)
+    all_codes = jnp.tanh(params["codes"])
+    z = all_codes[batch["demo"]]
+    mean, _ = actor_apply(params["actor"], batch["obs"], z)
+    loss = err(mean)
+    if train_psi:
+        loss = loss + jnp.mean(jnp.sum((z_psi - jax.lax.stop_gradient(z)) ** 2, -1))
+    return loss + 10.0 * code_spread(all_codes)
 
 
 def bc_residual(cfg: TrainConfig, nets: Nets, params, batch):
     """The co-policy's mean minus the expert's joint action ``(a_H, a_R)`` on an expert minibatch, each step on the
-    code BC trains it with (its demonstration's learned code, or psi's code; zero for presets without one)."""
-    if cfg.bc_codes == "psi":
-        z = nets.psi(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1))
-    else:
-        z = jnp.tanh(params["codes"])[batch["demo"]]
+    code BC trains it with (its demonstration's learned code; zero for presets without one)."""
+    z = jnp.tanh(params["codes"])[batch["demo"]]
     z = z if cfg.use_code else jnp.zeros_like(z)
     mean, _ = nets.actor(params["actor"], batch["obs"], z)
     return mean - jnp.concatenate([batch["ah"], batch["ar"]], -1)
@@ -298,8 +290,9 @@ def aux_objective(cfg: TrainConfig, nets: Nets, params, gen_batch, exp_batch, hp
         la, lr = behaviour_loss(_code_net(cfg, nets), nets.actor, params, exp_batch, nets.human_size,
                                 psi_grad="L_a" in on, z=expert_code(cfg, params, exp_batch))
         if "L_a" in on:
-            if cfg.la_codes == "demo":  # one learned code per demonstration, psi regressing it
-                la = bc_loss(nets.psi, nets.actor, params, exp_batch, True, codes="demo", target="human")
+            # one learned code per demonstration, psi regressing it (the paper's L_a, on psi's code of each step's
+            # history, interpolated 3 % against 48 % on fetchq: docs/notes.md)
+            la = bc_loss(nets.psi, nets.actor, params, exp_batch, True, target="human")
             terms["loss_a"] = (cfg.lambda_a, la)
         if "L_r" in on:
             terms["loss_r"] = (cfg.lambda_r, lr)
@@ -332,7 +325,7 @@ def bc_objective(cfg: TrainConfig, nets: Nets, params, batch):
     (BC-single)."""
     on = objective_terms(cfg)
     target = "both" if "bc_human" in on else "robot"
-    return bc_loss(nets.psi, nets.actor, params, batch, cfg.use_code, cfg.bc_codes, target, train_psi="bc_psi" in on)
+    return bc_loss(nets.psi, nets.actor, params, batch, cfg.use_code, target, train_psi="bc_psi" in on)
 
 
 PAPER_WORDING = {  # the paper's section 5 ("Baselines"), one line each

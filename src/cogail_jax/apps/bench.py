@@ -221,9 +221,6 @@ def add_arguments(p) -> None:
                    help="the train rows with the task's own settings (default: the config's field defaults)")
     p.add_argument("--updates-per-call", type=int, default=None, help="updates per timed call (default calls + 1, "
                    "at most 5)")
-    p.add_argument("--matmul-precision", default=None, choices=("highest", "tensorfloat32", "bfloat16"),
-                   help="compile the train_step rows under jax.default_matmul_precision(P) (default: JAX's, TF32 on "
-                        "recent NVIDIA GPUs), to see how much of the update is matmul work")
     p.add_argument("--phases", nargs="+", default=None, metavar="RUN",
                    help="benchmark nothing: print the seconds of each phase (demos, bc, compile, train, eval, "
                         "write, total) of these runs, their parts, and every program they compiled (count, XLA and "
@@ -255,11 +252,10 @@ def run_from_args(a) -> None:
         from ..algo.config import ConfigError
 
         raise ConfigError("no task given: pass one, e.g. `cogail bench TASK` (or --phases RUN ...)")
-    with jax.default_matmul_precision(a.matmul_precision):
-        seed_sets = ((300,), (300, 400, 500)) if a.seeds is None else (tuple(int(x) for x in a.seeds.split(",")),)
-        main(a.task, tuple(int(x) for x in a.sizes.split(",")), a.out, a.env_only, a.steps, not a.no_peer,
-             a.unroll, a.calls, not a.peer_only, seed_sets, a.devices, a.env_shards, a.task_settings,
-             a.updates_per_call, a.train_only)
+    seed_sets = ((300,), (300, 400, 500)) if a.seeds is None else (tuple(int(x) for x in a.seeds.split(",")),)
+    main(a.task, tuple(int(x) for x in a.sizes.split(",")), a.out, a.env_only, a.steps, not a.no_peer,
+         a.unroll, a.calls, not a.peer_only, seed_sets, a.devices, a.env_shards, a.task_settings,
+         a.updates_per_call, a.train_only)
 
 
 def cli(argv=None):

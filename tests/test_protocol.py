@@ -280,7 +280,8 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     capsys.readouterr()
     oom = eval_runner.eval_run(run, progress=False, ckpt_batch=3, memory=kept)
     monkeypatch.undo()
-    assert "give --ckpt-batch 1 next time" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "give --ckpt-batch 1 next time" in out and "compare runs evaluated with the same batch" in out
     assert oom["curves"] == mem["curves"] and oom["selected"] == sel
 
 

@@ -520,7 +520,8 @@ def _evaluate_checkpoints(s: Setup, store: Policies, steps: list[int], held: dic
                     raise
                 ckpt_batch = max(1, ckpt_batch // 2)
                 print(f"warning: the device ran out of memory evaluating {len(pad)} checkpoints at once; trying "
-                      f"{ckpt_batch} (give --ckpt-batch {ckpt_batch} next time)", flush=True)
+                      f"{ckpt_batch} (give --ckpt-batch {ckpt_batch} next time; on a GPU another batch can move "
+                      f"figures at the rounding level, so compare runs evaluated with the same batch)", flush=True)
                 continue
             for j, (step, _) in enumerate(group):
                 per_ckpt[step] = _split_sets(jax.tree.map(lambda x: x[j], out), part)

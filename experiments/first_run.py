@@ -19,6 +19,7 @@ import argparse
 import filecmp
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -45,6 +46,13 @@ def timed(args: list[str], env: dict, log: Path) -> float:
     return time.perf_counter() - t0
 
 
+def data_account(log: Path) -> dict:
+    """The data command's own account in ``log``: seconds until its datasets were ready and the compilation seconds
+    among them (summed over programs, so they can exceed the wall time where several compile side by side)."""
+    found = re.findall(r"datasets ready in ([\d.]+) s \(([\d.]+) s of it compiling\)", log.read_text(errors="replace"))
+    return {"data_ready_s": float(found[-1][0]), "data_compile_s": float(found[-1][1])} if found else {}
+
+
 def run_task(task: str, out: Path, seeds: str, budget: str, cases=tuple(c for c, _ in CASES)) -> list[dict]:
     env = {**os.environ, "COGAIL_CACHE": str(out / "cache"), "COGAIL_DATA": str(out / "data")}
     cogail = [sys.executable, "-m", "cogail_jax.apps.cli"]
@@ -58,10 +66,11 @@ def run_task(task: str, out: Path, seeds: str, budget: str, cases=tuple(c for c,
         log = out / f"{task}-{case}.log"
         log.unlink(missing_ok=True)
         t_data = timed([*cogail, "data", *common, *extra], env, log)
+        account = data_account(log)
         t_train = timed([*cogail, "train", *common, *extra, "--run", str(run), "--eval", "--no-progress"], env, log)
         speed = json.loads((run / "speed.json").read_text())
         rows.append({"task": task, "case": case, "data_s": t_data, "train_s": t_train, "total_s": t_data + t_train,
-                     "run_mb": folder_mb(run), "phases": speed.get("phases"), "run": str(run)})
+                     "run_mb": folder_mb(run), "phases": speed.get("phases"), "run": str(run), **account})
         print(f"{task} {case}: data {t_data:.1f} s + train {t_train:.1f} s = {t_data + t_train:.1f} s, "
               f"run folder {rows[-1]['run_mb']:.1f} MB", flush=True)
         (out / f"{task}-{case}.json").write_text(json.dumps(rows[-1], indent=1))
@@ -73,12 +82,13 @@ def run_task(task: str, out: Path, seeds: str, budget: str, cases=tuple(c for c,
 
 
 def table(rows: list[dict]) -> str:
-    lines = ["| task | case | `cogail data` s | `cogail train --eval` s | whole s | run folder MB (no tb/) | "
+    lines = ["| task | case | `cogail data` s (compiling) | `cogail train --eval` s | whole s | run folder MB (no tb/) | "
              "phases: start / demos / bc / compile / train / eval / write |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         ph = r["phases"] or {}
         split = " / ".join(f"{ph.get(p, 0):.1f}" for p in ("start", "demos", "bc", "compile", "train", "eval", "write"))
-        lines.append(f"| {r['task']} | {r['case']} | {r['data_s']:.1f} | {r['train_s']:.1f} | **{r['total_s']:.1f}** | "
+        comp = f" ({r['data_compile_s']:.1f})" if "data_compile_s" in r else ""
+        lines.append(f"| {r['task']} | {r['case']} | {r['data_s']:.1f}{comp} | {r['train_s']:.1f} | **{r['total_s']:.1f}** | "
                      f"{r['run_mb']:.1f} | {split} |")
     same = {r["task"]: r["cold_warm_results_identical"] for r in rows}
     lines += ["", "cold and warm results.json identical (byte for byte): "

@@ -37,7 +37,8 @@ object orientation (6D, world), finger gaps / 8 cm (2), handle position relative
 that agent's base frame, 3 + 3), drawer opening / 16 cm (1), flags: human grasps the object, robot
 grasps the object, human grasps the handle, robot grasps the handle (4); then the object-centric features of
 the human and of the robot (11 each, :func:`mjx_common.object_frame_features`: the bar's ends in the agent's
-base frame relative to its TCP, the TCP's yaw relative to the bar, the TCP in the bar's frame), the observation
+base frame relative to its TCP, the TCP's yaw relative to the bar, the TCP in the bar's frame; each agent's fade out
+with its TCP's distance from the bar, whole within 8 cm, none beyond 16 cm), the observation
 indices :attr:`SeqManip.object_frame_dims` (a config's ``obs_frame`` chooses whether
 they or the absolute orientations are read).
 
@@ -126,6 +127,9 @@ CLOSED_TOL = 0.01       # opening (m) below which the drawer counts as closed
 REST_SPEED = 0.05       # object speed (m/s) below which it "rests"
 DRAWER_OPEN_MIN = 0.10  # opening the scripted droppers wait for
 CUE_Y = -0.13           # s1: the scripted robot starts once the human's TCP is past this y (spot side)
+# an agent's object-centric features fade out with its TCP's distance from the bar: whole within FADE_NEAR, none
+# beyond FADE_FAR (m); a hand far from the bar needs where it is (kept in the observation), not how it is turned
+FADE_NEAR, FADE_FAR = 0.08, 0.16
 HANDOVER_X_MAX = 0.075  # the patient human's handovers: object x below this (handover spots x <= 0.02; the drop into
                         # the open drawer is at x >= 0.085)
 WALL_TOP = FLOOR_Z + WALL_H
@@ -222,7 +226,7 @@ class SeqManip(CollabEnv):
         self._renderer = None
 
     # the observation layout and the team's pose ranges (part of the version fingerprint of generated data)
-    spec_tag = "obs65-object-frame-poses3-prompt-start10-drop-fits-04"
+    spec_tag = "obs65-object-frame-local-poses3-prompt-start10-drop-fits-04-waitturn"
     object_frame_dims = tuple(range(43, 65))
     orientation_dims = (*range(3, 9), *range(12, 18), *range(24, 30))  # the TCPs' and the bar's 6D rotations
 
@@ -297,8 +301,14 @@ class SeqManip(CollabEnv):
             jnp.stack([mc.finger_gap(d, h), mc.finger_gap(d, r)]) / mc.MAX_GAP,
             rel(hp, h), rel(hp, r), (self._opening(d) / TRAVEL)[None],
             jnp.stack([info["human_grasp"], info["robot_grasp"], info["human_handle"], info["robot_handle"]]),
-            mc.object_frame_features(d, h, p, R, OBJ_HALF[1]), mc.object_frame_features(d, r, p, R, OBJ_HALF[1]),
+            *(self._near_bar(d, g, p) * mc.object_frame_features(d, g, p, R, OBJ_HALF[1]) for g in (h, r)),
         ]).astype(jnp.float32)
+
+    @staticmethod
+    def _near_bar(d, g: mc.Gripper, p: jax.Array) -> jax.Array:
+        """1 within FADE_NEAR of the bar's centre, 0 beyond FADE_FAR, linear between."""
+        dist = jnp.linalg.norm(mc.tcp_pos(d, g) - p)
+        return jnp.clip((FADE_FAR - dist) / (FADE_FAR - FADE_NEAR), 0.0, 1.0)
 
     def replay_hold(self, state: State, a_h: jax.Array) -> tuple[jax.Array, jax.Array]:
         """The patient human, at a handover only: while it holds the object out (not over the drawer) and the

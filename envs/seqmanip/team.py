@@ -41,7 +41,7 @@ Poses and places (the ranges a person plausibly uses; the robot grasps the bar w
 The drop (either agent): the bar's centre 4.7-5.5 cm past the drawer's front inner wall, 1-3 cm above the walls. A
 bar turned by at most 0.35-0.45 rad (the episode's bound) fits the drawer there, so the dropper turns the bar only as
 far as it must: a bar held within the bound is dropped as it is held, one turned further is turned back to the bound
-first, as a person putting it away would.
+first, as a person putting it away would (the robot already while it waits for the drawer).
 
 Every default, training, validation and test episode lies in the training ranges; an episode drawn with
 ``variation | POSE_HELDOUT`` (the ``pose_heldout`` evaluation set) has either its yaw or its height (one of
@@ -410,8 +410,8 @@ def _robot(env, ts: TeamState, c: dict, seen: dict | None = None):
         R_TO_HANDLE: handle_pt[1] + _up(0.07), R_DESC_HANDLE: handle_pt[1], R_GRIP_HANDLE: hold_r,
         R_PULL: c["pull"][1], R_HOLD_OPEN: hold_r, R_PUSH: c["push"][1], R_LET_GO: hold_r}, retreat_r)
     yawt = _select(pr, {
-        R_APPROACH: obj_yaw, R_DESCEND: obj_yaw, R_CLOSE: obj_yaw, R_ABOVE_DROP: _drop_yaw(c, ts, 1),
-        R_LOWER: _drop_yaw(c, ts, 1), R_TO_HANDLE: 0.0, R_DESC_HANDLE: 0.0, R_GRIP_HANDLE: 0.0, R_PULL: 0.0,
+        R_APPROACH: obj_yaw, R_DESCEND: obj_yaw, R_CLOSE: obj_yaw, R_WAIT_OPEN: _drop_yaw(c, ts, 1),
+        R_ABOVE_DROP: _drop_yaw(c, ts, 1), R_LOWER: _drop_yaw(c, ts, 1), R_TO_HANDLE: 0.0, R_DESC_HANDLE: 0.0, R_GRIP_HANDLE: 0.0, R_PULL: 0.0,
         R_HOLD_OPEN: 0.0, R_PUSH: 0.0}, jnp.nan)
     grip = jnp.where(((pr >= R_CLOSE) & (pr <= R_LOWER)) | ((pr >= R_GRIP_HANDLE) & (pr <= R_PUSH)), -1.0, 1.0)
     near = lambda tgt, tol: _near(c, 1, tgt, tol)  # noqa: E731

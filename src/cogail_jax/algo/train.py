@@ -465,19 +465,19 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
             state, _ = bc_jit(state, expert)
         return state
 
-    def compile_ahead(seeds, expert):
-        """Compile the initial state's and BC's programs as ``init(seeds, expert)`` runs them on this process's
-        first device (``expert``: arrays or ``jax.ShapeDtypeStruct``), reading no data; returns the state's
-        shapes, placed as ``init`` places it (for the training chunk's ``lower``)."""
+    def lower_ahead(seeds, expert):
+        """The initial state's and BC's programs lowered as ``init(seeds, expert)`` runs them on this process's
+        first device (``expert``: arrays or ``jax.ShapeDtypeStruct``), reading no data, and the state's shapes,
+        placed as ``init`` places it (for the training chunk's ``lower``): ``(lowered, state)``."""
         k = jax.eval_shape(lambda: keys(seeds))
-        init_jit.lower(norm, code_init, k).compile()
+        lowered = [init_jit.lower(norm, code_init, k)]
         here = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
         placed = lambda t: jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=here), t)  # noqa: E731
         state = placed(init_jit.eval_shape(norm, code_init, k))
         if cfg.bc_steps:
-            bc_jit.lower(state, expert).compile()
+            lowered.append(bc_jit.lower(state, expert))
             state = placed(bc_jit.eval_shape(state, expert)[0])
-        return state
+        return lowered, state
 
     def traced(hyper):  # the context with the HYPER values the program is given (parallel.SeedChunk's extra)
         return make_context(ctx.cfg, env, {name: hyper[i] for i, name in enumerate(HYPER)})
@@ -499,7 +499,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         state = init_jit.eval_shape(norm, code_init, jax.eval_shape(lambda: keys(seeds)))
         return bc_jit.eval_shape(state, expert)[0] if cfg.bc_steps else state
 
-    init.abstract, init.compile_ahead = abstract, compile_ahead
+    init.abstract, init.lower_ahead = abstract, lower_ahead
     one = chunk if shards.count(cfg) == 1 else chunk_here
     # the update's hyperparameters are the program's argument (``extra``), not constants: a run that changes only
     # their values runs the training program kept for another (``config.chunk_key``)

@@ -9,6 +9,7 @@ import platform
 import subprocess
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -124,8 +125,10 @@ def compile_ahead(cfg: TrainConfig) -> None:
     d = env.observation_size
     stats = {"mean": np.zeros(d, np.float32), "std": np.ones(d, np.float32), "num_demos": n}  # values unread
     init, chunk, _ = train.make_train_fns(cfg, env, stats)
-    state = init.compile_ahead(cfg.seeds, expert)
-    chunk.lower(state, expert).compile()
+    lowered, state = init.lower_ahead(cfg.seeds, expert)  # traced one after another (Python), compiled side by side
+    lowered.append(chunk.lower(state, expert))
+    with ThreadPoolExecutor(len(lowered)) as pool:
+        list(pool.map(lambda x: x.compile(), lowered))
 
 
 def run_metadata() -> dict:

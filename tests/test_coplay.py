@@ -174,6 +174,29 @@ def test_proxy_trains_on_the_test_split_only(demo_files, fetchq):
     assert a_h.shape == (3, fetchq.human_action_size) and np.all(np.abs(np.asarray(a_h)) <= 1)
 
 
+def test_a_proxy_study_variant_does_not_read_its_unread_features(demo_files, fetchq):
+    """experiments/proxy_study.py: a proxy variant that does not read some observation indices acts the same
+    whatever they hold (in the newest observation and in its history), and moves with a feature it reads."""
+    import importlib.util
+    from pathlib import Path
+
+    from cogail_jax.data import io as data
+    from cogail_jax.eval import rollouts
+
+    spec = importlib.util.spec_from_file_location("proxy_study",
+                                                  Path(__file__).parents[1] / "experiments" / "proxy_study.py")
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    test = rollouts.heldout_arrays(data.load_demos(demo_files[1], fetchq, require_init=True))
+    D = test["obs"].shape[-1]
+    proxy, info = study.train_variant(test, (0, D - 1), key=0, steps=20)
+    assert info["samples"] == int(np.sum(test["length"]))
+    hist = jnp.asarray(test["obs"][0, :12]).reshape(3, 4, -1)
+    moved = hist.at[..., jnp.array([0, D - 1])].add(jax.random.normal(jax.random.PRNGKey(1), hist[..., :2].shape) * 5)
+    np.testing.assert_array_equal(coplay.proxy_action(proxy, hist), coplay.proxy_action(proxy, moved))
+    assert not np.array_equal(coplay.proxy_action(proxy, hist), coplay.proxy_action(proxy, hist.at[..., 1].add(5.0)))
+
+
 def test_eval_run_reports_coplay(tiny_cfg, demo_files, fetchq, tmp_path, caplog):
     """(d) results.json / results.md carry co-play per partner for the learned robot at the selected and the
     paper-protocol checkpoints and for the scripted robot, the proxy's record (trained on the test split: its

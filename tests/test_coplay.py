@@ -174,45 +174,6 @@ def test_proxy_trains_on_the_test_split_only(demo_files, fetchq):
     assert a_h.shape == (3, fetchq.human_action_size) and np.all(np.abs(np.asarray(a_h)) <= 1)
 
 
-def test_the_proxy_does_not_read_its_unread_features(demo_files, fetchq):
-    """A proxy trained with ``unread`` indices acts the same whatever those features hold (in the newest observation
-    and in its history), and moves with the features it reads; indices outside the observation are refused."""
-    from cogail_jax.data import io as data
-    from cogail_jax.eval import rollouts
-
-    test = rollouts.heldout_arrays(data.load_demos(demo_files[1], fetchq, require_init=True))
-    D = test["obs"].shape[-1]
-    unread = (0, D - 1)
-    proxy, info = coplay.train_proxy(test, "test", steps=50, unread=unread)
-    assert info["unread"] == list(unread)
-    hist = jnp.asarray(test["obs"][0, :3 * 4]).reshape(3, 4, -1)
-    moved = hist.at[..., list(unread)].add(jax.random.normal(jax.random.PRNGKey(1), hist[..., :2].shape) * 5)
-    np.testing.assert_array_equal(coplay.proxy_action(proxy, hist), coplay.proxy_action(proxy, moved))
-    read = hist.at[..., 1].add(5.0)
-    assert not np.array_equal(coplay.proxy_action(proxy, hist), coplay.proxy_action(proxy, read))
-    with pytest.raises(coplay.CoplayError, match="outside the observation"):
-        coplay.train_proxy(test, "test", steps=5, unread=(D,))
-
-
-def test_proxy_obs_frame_is_checked_and_picks_the_unread_features(fetchq):
-    """``proxy_obs_frame`` takes the values of ``obs_frame`` and picks the env's unread indices the same way;
-    another value is refused with the choices named."""
-    from cogail_jax.algo import train
-    from cogail_jax.algo.config import ConfigError, TrainConfig
-
-    cfg = TrainConfig(task="fetchq")
-    with pytest.raises(ConfigError, match="proxy_obs_frame must be one of"):
-        cfg.replace(proxy_obs_frame="relative").validate()
-
-    class Env:
-        orientation_dims, object_frame_dims = (3, 4), (7, 8, 9)
-
-    assert train.unread_dims(cfg, Env(), "object") == (3, 4)
-    assert train.unread_dims(cfg, Env(), "world") == (7, 8, 9)
-    assert train.unread_dims(cfg, Env(), "both") == ()
-    assert train.unread_dims(cfg.replace(obs_frame="world"), Env()) == (7, 8, 9)
-
-
 def test_eval_run_reports_coplay(tiny_cfg, demo_files, fetchq, tmp_path, caplog):
     """(d) results.json / results.md carry co-play per partner for the learned robot at the selected and the
     paper-protocol checkpoints and for the scripted robot, the proxy's record (trained on the test split: its

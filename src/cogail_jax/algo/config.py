@@ -87,9 +87,6 @@ class TrainConfig:
     # each agent's frame and the reverse), "both" all of them, "object" the object-centric features instead of the
     # absolute orientations (the env's ``orientation_dims``: nothing that tells how the scene is turned)
     obs_frame: str = "both"
-    # what co-play's human proxy reads (our addition; the same choices as ``obs_frame``): chosen per task by how
-    # often the scripted robot, the test humans' own partner, completes co-play with the proxy (docs/evaluation.md)
-    proxy_obs_frame: str = "both"
     # discriminator
     disc_loss: str = "auto"  # "bce" | "lsgan" | "auto" (the task's default_config(), else lsgan)
     disc_lr: float = 3e-4
@@ -190,8 +187,6 @@ class TrainConfig:
                 f"must be divisible by num-minibatches ({self.num_minibatches})")
         if self.obs_frame not in OBS_FRAMES:
             raise ConfigError(f"obs_frame must be one of {', '.join(OBS_FRAMES)}, got {self.obs_frame!r}")
-        if self.proxy_obs_frame not in OBS_FRAMES:
-            raise ConfigError(f"proxy_obs_frame must be one of {', '.join(OBS_FRAMES)}, got {self.proxy_obs_frame!r}")
         if not self.obs_std_floor > 0:
             raise ConfigError(f"obs_std_floor must be positive, got {self.obs_std_floor}")
         if self.multi_device not in ("auto", "shard_map", "per_device"):

@@ -535,11 +535,10 @@ def fit_normalizer(expert: dict[str, np.ndarray], std_floor: float = 1e-2, unrea
             "features": demo_features((expert["obs"] - mean) / std, expert["demo"])}
 
 
-def unread_dims(cfg: TrainConfig, env, frame: str | None = None) -> tuple[int, ...]:
-    """The observation indices that an observation frame (``frame``, default ``cfg.obs_frame``: what the networks
-    read) leaves unread: the env's object-centric features ("world"), its absolute orientations ("object") or none
-    ("both")."""
-    key = {"world": "object_frame_dims", "object": "orientation_dims"}.get(frame or cfg.obs_frame)
+def unread_dims(cfg: TrainConfig, env) -> tuple[int, ...]:
+    """The observation indices ``cfg``'s networks do not read (``obs_frame``): the env's object-centric features
+    ("world"), its absolute orientations ("object") or none ("both")."""
+    key = {"world": "object_frame_dims", "object": "orientation_dims"}.get(cfg.obs_frame)
     return tuple(getattr(env, key, ())) if key else ()
 
 

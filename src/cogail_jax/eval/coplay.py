@@ -132,19 +132,16 @@ def _init_layers(key, sizes):
 
 
 def train_proxy(demos: dict, split: str, steps: int = 2000, seed: int = PROXY_SEED,
-                hidden: tuple = PROXY_HIDDEN, file: str | None = None, unread=()) -> tuple[Proxy, dict]:
+                hidden: tuple = PROXY_HIDDEN, file: str | None = None) -> tuple[Proxy, dict]:
     """Behaviour-clone the human of the TEST split: an MLP (:func:`proxy_inputs`) -> a_H (mean squared error on every valid step,
     full batch Adam, ``steps`` updates in one jitted ``lax.scan``, initial parameters from ``PRNGKey(seed)``; so
     the same data give the same proxy). ``demos``: the split as the evaluation loads it
     (``rollouts.heldout_arrays``: ``obs``, ``ah``, ``length``); ``split``: its name, which must be ``test`` (the
     proxy stands for people the robot has not seen: neither the training nor the validation humans).
 
-    ``unread``: observation indices the proxy does not read (in the observation and in its changes; they normalise
-    to 0, as the networks' unread features do).
-
     Returns the proxy and its record: ``split``, ``file``, ``episodes``, ``samples``, ``digest``
     (:func:`data_digest` of the data), ``steps``, ``hidden``, ``loss`` (final training loss) and ``loss_curve``
-    (the loss at 11 points of training) and ``unread``."""
+    (the loss at 11 points of training)."""
     if split != TEST_SPLIT:
         raise CoplayError(f"the human proxy trains on the test split's humans only, not the {split!r} split: pass "
                           "the test split (Setup.heldout)")
@@ -162,13 +159,6 @@ def train_proxy(demos: dict, split: str, steps: int = 2000, seed: int = PROXY_SE
                           "with episodes")
     mean = x.mean(0)
     std = np.maximum(x.std(0), 1e-3)
-    unread = sorted(int(i) for i in unread)
-    if unread:
-        if min(unread) < 0 or max(unread) >= obs.shape[-1]:
-            raise CoplayError(f"the proxy's unread indices {unread} lie outside the observation's "
-                              f"{obs.shape[-1]} features: fix the env's feature indices")
-        cols = [i + b * obs.shape[-1] for b in range(1 + len(PROXY_LAGS)) for i in unread]
-        mean[cols], std[cols] = 0.0, np.inf
     layers = _init_layers(jax.random.PRNGKey(seed), (x.shape[1], *hidden, y.shape[1]))
     opt = optax.adam(PROXY_LR)
 
@@ -190,7 +180,7 @@ def train_proxy(demos: dict, split: str, steps: int = 2000, seed: int = PROXY_SE
     losses = np.asarray(losses)
     info = {"split": split, "file": None if file is None else str(file), "episodes": int(len(length)),
             "samples": int(len(x)), "digest": data_digest(obs, ah, length), "steps": int(steps),
-            "hidden": list(hidden), "loss": float(final), "unread": unread,
+            "hidden": list(hidden), "loss": float(final),
             "loss_curve": [float(losses[min(int(round(i * (steps - 1) / 10)), steps - 1)]) for i in range(11)]}
     return Proxy(layers, jnp.asarray(mean), jnp.asarray(std)), info
 
@@ -368,10 +358,7 @@ def prepare(s, episodes: int | None = None, proxy_steps: int | None = None) -> P
                           "test split (need_heldout=True)")
     episodes = int(episodes or default_episodes())
     proxy_steps = int(proxy_steps or (500 if jax.default_backend() == "cpu" else 4000))
-    from ..algo.train import unread_dims
-
-    proxy, proxy_info = train_proxy(s.heldout, TEST_SPLIT, steps=proxy_steps, file=(s.files or {}).get("test"),
-                                    unread=unread_dims(cfg, env, cfg.proxy_obs_frame))
+    proxy, proxy_info = train_proxy(s.heldout, TEST_SPLIT, steps=proxy_steps, file=(s.files or {}).get("test"))
     names, scripted = partners(env), has_scripted_robot(env)
     batch = episode_batch(env, names, episodes, ("learned", "scripted") if scripted else ("learned",))
     return Prepared(proxy, proxy_info, names, scripted, episodes, batch, make_coplay_fn(env, cfg, s.nets))

@@ -183,10 +183,10 @@ def test_a_proxy_study_variant_does_not_read_its_unread_features(demo_files, fet
     from cogail_jax.data import io as data
     from cogail_jax.eval import rollouts
 
-    spec = importlib.util.spec_from_file_location("proxy_study",
-                                                  Path(__file__).parents[1] / "experiments" / "proxy_study.py")
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    found = importlib.util.spec_from_file_location("proxy_study",
+                                                   Path(__file__).parents[1] / "experiments" / "proxy_study.py")
+    study = importlib.util.module_from_spec(found)
+    found.loader.exec_module(study)
     test = rollouts.heldout_arrays(data.load_demos(demo_files[1], fetchq, require_init=True))
     D = test["obs"].shape[-1]
     proxy, info = study.train_variant(test, (0, D - 1), key=0, steps=20)

@@ -154,6 +154,22 @@ def test_the_proxy_plays_more_episodes_from_the_same_starts(fetchq):
     assert b["proxy"].sum() == 2 * 3 * coplay.PROXY_EPISODES
 
 
+def test_the_scripted_robot_plays_other_episodes_in_each_copy(fetchq):
+    """In each copy of the program (one per seed of the learned robot) the learned robot's episodes start from the
+    same keys, and the scripted robot's from other keys in every copy after the first, none of them an episode of the
+    first copy: its reference rate rests on as many episodes as the learned robot's mean over seeds."""
+    b = coplay.episode_batch(fetchq, [coplay.SCRIPTED, coplay.PROXY], 3, ("learned", "scripted"))
+    keys = np.asarray(coplay.episode_keys(b["index"], b["scripted_robot"], 3))
+    assert keys.shape == (3, len(b["index"]), 2)
+    np.testing.assert_array_equal(keys[0], b["key"])
+    learned = ~b["scripted_robot"]
+    for p in (1, 2):
+        np.testing.assert_array_equal(keys[p][learned], keys[0][learned])
+    ref = np.concatenate([keys[p][b["scripted_robot"]] for p in range(3)])
+    assert len(np.unique(ref, axis=0)) == len(ref)
+    assert not {tuple(k) for k in keys[1:, b["scripted_robot"]].reshape(-1, 2)} & {tuple(k) for k in keys[0]}
+
+
 def test_proxy_trains_on_the_test_split_only(demo_files, fetchq):
     """(b) The proxy refuses any split but the test one, learns deterministically, and records what it learned
     from (the test data's digest)."""
@@ -172,6 +188,29 @@ def test_proxy_trains_on_the_test_split_only(demo_files, fetchq):
         np.testing.assert_array_equal(a, b)
     a_h = coplay.proxy_action(p1, jnp.asarray(test["obs"][0, :3 * 4]).reshape(3, 4, -1))
     assert a_h.shape == (3, fetchq.human_action_size) and np.all(np.abs(np.asarray(a_h)) <= 1)
+
+
+def test_a_proxy_study_variant_does_not_read_its_unread_features(demo_files, fetchq):
+    """experiments/proxy_study.py: a proxy variant that does not read some observation indices acts the same
+    whatever they hold (in the newest observation and in its history), and moves with a feature it reads."""
+    import importlib.util
+    from pathlib import Path
+
+    from cogail_jax.data import io as data
+    from cogail_jax.eval import rollouts
+
+    found = importlib.util.spec_from_file_location("proxy_study",
+                                                   Path(__file__).parents[1] / "experiments" / "proxy_study.py")
+    study = importlib.util.module_from_spec(found)
+    found.loader.exec_module(study)
+    test = rollouts.heldout_arrays(data.load_demos(demo_files[1], fetchq, require_init=True))
+    D = test["obs"].shape[-1]
+    proxy, info = study.train_variant(test, (0, D - 1), key=0, steps=20)
+    assert info["samples"] == int(np.sum(test["length"]))
+    hist = jnp.asarray(test["obs"][0, :12]).reshape(3, 4, -1)
+    moved = hist.at[..., jnp.array([0, D - 1])].add(jax.random.normal(jax.random.PRNGKey(1), hist[..., :2].shape) * 5)
+    np.testing.assert_array_equal(coplay.proxy_action(proxy, hist), coplay.proxy_action(proxy, moved))
+    assert not np.array_equal(coplay.proxy_action(proxy, hist), coplay.proxy_action(proxy, hist.at[..., 1].add(5.0)))
 
 
 def test_eval_run_reports_coplay(tiny_cfg, demo_files, fetchq, tmp_path, caplog):

@@ -165,8 +165,10 @@ def test_the_scripted_robot_plays_other_episodes_in_each_copy(fetchq):
     learned = ~b["scripted_robot"]
     for p in (1, 2):
         np.testing.assert_array_equal(keys[p][learned], keys[0][learned])
-    ref = np.concatenate([keys[p][b["scripted_robot"]] for p in range(3)])
-    assert len(np.unique(ref, axis=0)) == len(ref)
+    for name in (coplay.SCRIPTED, coplay.PROXY):  # per partner, no episode of the scripted robot repeats
+        sel = b["scripted_robot"] & (b["partner"] == name)
+        ref = keys[:, sel].reshape(-1, 2)
+        assert len(ref) == 3 * sel.sum() and len(np.unique(ref, axis=0)) == len(ref)
     assert not {tuple(k) for k in keys[1:, b["scripted_robot"]].reshape(-1, 2)} & {tuple(k) for k in keys[0]}
 
 
@@ -242,7 +244,7 @@ def test_eval_run_reports_coplay(tiny_cfg, demo_files, fetchq, tmp_path, caplog)
     res = json.loads((run / "results.json").read_text())
     c = res["coplay"]
     names = ["scripted", "slow", "fast", "pauses", "detour", "noise", "change_of_mind", "proxy"]
-    assert c["partners"] == names and c["episodes"] == 1
+    assert c["partners"] == names and c["episodes"] == 1 and c["scripted_robot_copies"] == 2  # seeds 3, 5
     assert c["learned"]["selected"]["checkpoint"] == res["selected"]["checkpoint"]
     assert c["learned"]["paper_protocol"]["checkpoint"] == res["paper_protocol"]["replay"]["checkpoint"]
     for key in ("selected", "paper_protocol"):

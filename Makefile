@@ -74,15 +74,17 @@ clean:
 	rm -rf runs .pytest_cache
 
 # The paper's tables (Table 1 replay, Table 2 interpolation, Fig. 3) for TASKS x METHODS, 3 seeds each; the jobs run
-# one per GPU over GPUS (all visible ones by default), the rest queued; SHARD=i/n runs the i-th of n hosts' share.
+# one per GPU over GPUS (all visible ones by default; JOBS_PER_GPU=K: K side by side on each), the rest queued, each
+# task's datasets first; SHARD=i/n runs the i-th of n hosts' share.
 TASKS ?= fetchq
 METHODS ?= cogail,ma_infogail,ma_gail,bc_gail,bc_single,diayn
 MIXES ?= uniform
 GPUS ?= all
+JOBS_PER_GPU ?= 1
 SHARD ?=
 paper: install
 	$(BIN)/python experiments/paper.py --tasks $(TASKS) --methods $(METHODS) --mixes $(MIXES) --out results/paper \
-	  --gpus $(GPUS) $(if $(SHARD),--shard $(SHARD),)
+	  --gpus $(GPUS) --jobs-per-gpu $(JOBS_PER_GPU) $(if $(SHARD),--shard $(SHARD),)
 
 # Which rows of the shipped tables were not trained from this checkout's code with the current settings.
 paper-check: install

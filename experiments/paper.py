@@ -21,8 +21,11 @@ trains nothing and only rewrites the tables (and the README block) from ``<out>/
 
 Jobs (one per task x method x mixture) run one per GPU: with several GPUs visible (``--gpus all``, the
 default, or ``--gpus N``) each job is a process of its own on one GPU (``CUDA_VISIBLE_DEVICES``), at most one per
-GPU at a time and the rest queued, its results in ``<out>/jobs/<task>-<method>-<mix>/`` and merged into
-``<out>/paper.json`` as it ends. ``--shard i/n`` runs only every n-th job from the i-th (0-based), so that n hosts
+GPU at a time (``--jobs-per-gpu K``: K; the jobs share the GPU's memory, and their figures are those of one job at a
+time) and the rest queued, its results in ``<out>/jobs/<task>-<method>-<mix>/`` and merged into
+``<out>/paper.json`` as it ends. Each task's datasets are made first, by one process per task
+(``--data-only``; log ``<out>/jobs/<task>-data.log``), so that jobs side by side never write the same file; a task's
+jobs start when its datasets are ready. ``--shard i/n`` runs only every n-th job from the i-th (0-based), so that n hosts
 share the grid; ``--merge`` then joins their ``paper.json``.
 
 Each run's entry records the commit it was trained at (and whether the code had uncommitted changes) and the
@@ -291,15 +294,39 @@ def shard_jobs(jobs: list, shard: str | None) -> list:
     return list(jobs)[i::n]
 
 
-def run_jobs(jobs: list, slots: list[str], launch, poll: float = 0.5):
+def job_slots(gpus: list[str], per_gpu: int = 1) -> list[str]:
+    """The slots of ``per_gpu`` jobs on each of ``gpus`` (``gpu_slots``'s ids), one GPU after another at each depth
+    so that jobs spread over the GPUs first: the id itself for one job per GPU, else ``<id>:<k>``."""
+    if per_gpu < 1:
+        raise SystemExit(f"--jobs-per-gpu {per_gpu}: give 1 or more")
+    return list(gpus) if per_gpu == 1 else [f"{g}:{k}" for k in range(per_gpu) for g in gpus]
+
+
+def slot_device(slot: str) -> str:
+    """The GPU id (``CUDA_VISIBLE_DEVICES``) of a slot of :func:`job_slots`."""
+    return slot.split(":")[0]
+
+
+def run_jobs(jobs: list, slots: list[str], launch, poll: float = 0.5, ready=None):
     """Run ``jobs`` at most one per slot at a time, in order, each as ``launch(job, slot)`` (a process: ``poll()``
-    None while it runs, else its exit code); yields ``(job, exit code)`` as each ends."""
+    None while it runs, else its exit code); yields ``(job, exit code)`` as each ends. ``ready(job)``: True when a
+    queued job may start, False while it must wait (the first ready one starts first), None when it never can (it is
+    yielded with exit code None, not launched); without it every job is ready."""
     queue, free, running = list(jobs), list(slots), {}
+    ready = ready or (lambda job: True)
     while queue or running:
-        while queue and free:
+        for job in [j for j in queue if ready(j) is None]:
+            queue.remove(job)
+            yield job, None
+        while free:
+            job = next((j for j in queue if ready(j)), None)
+            if job is None:
+                break
+            queue.remove(job)
             slot = free.pop(0)
-            job = queue.pop(0)
             running[slot] = (job, launch(job, slot))
+        if queue and not running and not any(ready(j) for j in queue):
+            raise RuntimeError(f"jobs wait on nothing that runs: {queue}")
         ended = [(slot, job, proc.poll()) for slot, (job, proc) in running.items() if proc.poll() is not None]
         for slot, job, code in ended:
             del running[slot]
@@ -309,8 +336,44 @@ def run_jobs(jobs: list, slots: list[str], launch, poll: float = 0.5):
             time.sleep(poll)
 
 
+DATA = "data"  # a data job: (task, DATA, "mix,mix", "method,method")
+
+
 def job_name(job) -> str:
-    return "-".join(job)
+    return "-".join(job[:2]) if job[1] == DATA else "-".join(job)
+
+
+def data_jobs(todo: list) -> list[tuple]:
+    """One job per task of ``todo`` that makes every dataset its jobs need (their mixtures and methods)."""
+    out = {}
+    for t, m, mix in todo:
+        mixes, methods = out.setdefault(t, ({}, {}))
+        mixes[mix], methods[m] = None, None
+    return [(t, DATA, ",".join(mixes), ",".join(methods)) for t, (mixes, methods) in out.items()]
+
+
+def data_argv(a, job) -> list[str]:
+    """The command of a data job: this script with ``--data-only`` on its task, mixtures and methods."""
+    t, _, mixes, methods = job
+    argv = [sys.executable, str(Path(__file__).resolve()), "--data-only", "--tasks", t, "--methods", methods,
+            "--mixes", mixes, "--seeds", a.seeds]
+    for item in a.set:
+        argv += ["--set", item]
+    for flag, on in (("--nondeterministic", a.nondeterministic), ("--no-compile-cache", a.no_compile_cache)):
+        argv += [flag] if on else []
+    return argv
+
+
+def make_data(tasks, methods, mixes_of, seeds, extra) -> None:
+    """Every dataset of the grid's jobs (``make_datasets`` of each job's config) and the validation split's varied
+    humans of each task and mixture (``validation_robustness_sets``), as the jobs themselves would make them."""
+    from cogail_jax.data.sets import make_datasets
+
+    for t in tasks:
+        for mix in mixes_of(t):
+            for m in methods:
+                make_datasets(resolve_config(t, m, mix, seeds, extra))
+            validation_robustness_sets(t, mix)
 
 
 def job_argv(a, job, out: Path) -> list[str]:
@@ -867,6 +930,12 @@ def main(argv=None) -> int:
     p.add_argument("--gpus", default="all", metavar="N|all",
                    help="run the jobs one per GPU over this many GPUs (default: every visible one), each a process "
                         "of its own, the rest queued; with one GPU (or none) they run one after another here")
+    p.add_argument("--jobs-per-gpu", type=int, default=1, metavar="K",
+                   help="run K jobs side by side on each GPU (default 1); they share its memory and give the figures "
+                        "of one job at a time, in less time where one job leaves the GPU idle")
+    p.add_argument("--data-only", action="store_true",
+                   help="train nothing: make every dataset the grid's jobs need, as each job would (the runs' sets "
+                        "and the validation split's varied humans)")
     p.add_argument("--shard", default=None, metavar="i/n",
                    help="run only every n-th job from the i-th (0-based), e.g. 0/2 and 1/2 on two hosts; join "
                         "their results with --merge")
@@ -885,6 +954,10 @@ def main(argv=None) -> int:
     readme = Path(a.readme) if a.readme else None
     tasks, methods = a.tasks.split(","), a.methods.split(",")
     seeds = [int(s) for s in a.seeds.split(",")]
+    mixes_of = lambda t: a.mixes.split(",") if t == "fetchq" else ["uniform"]  # noqa: E731
+    if a.data_only:
+        make_data(tasks, methods, mixes_of, seeds, extra)
+        return 0
     results = json.loads((out / "paper.json").read_text()) if (out / "paper.json").exists() else {}
     if a.compare:
         ref_file = Path(a.compare) / "paper.json"
@@ -919,7 +992,7 @@ def main(argv=None) -> int:
     todo, old_rows = [], stale(results) if tasks else {}
     for t in tasks:
         for m in methods:
-            for mix in (a.mixes.split(",") if t == "fetchq" else ["uniform"]):
+            for mix in mixes_of(t):
                 key = f"{t}/{m}/{mix}" + (f"/{a.label}" if a.label else "")
                 h = config_hash(resolve_config(t, m, mix, seeds, extra))
                 old = results.get(key) or {}
@@ -930,22 +1003,43 @@ def main(argv=None) -> int:
                     continue
                 todo.append((t, m, mix))
     todo = shard_jobs(todo, a.shard)
-    slots = gpu_slots(a.gpus)
+    gpus = gpu_slots(a.gpus)
+    slots = job_slots(gpus, a.jobs_per_gpu) if gpus != ["-"] else gpus
     failed = []
-    if len(slots) > 1 and len(todo) > 1:  # one process per job, one job per GPU at a time
+    if len(slots) > 1 and len(todo) > 1:  # one process per job, K jobs per GPU at a time, each task's data first
+        data = {job[0]: job for job in data_jobs(todo)}
+        made: dict[str, int | None] = {}  # task -> its data job's exit code
+
         def where(job):  # the job's folder and log
-            name = job_name(job) + (f"-{a.label}" if a.label else "")
+            name = job_name(job) + (f"-{a.label}" if a.label and job[1] != DATA else "")
             return out / "jobs" / name, out / "jobs" / f"{name}.log"
+
+        def ready(job):
+            if job[1] == DATA:
+                return True
+            if job[0] not in made:
+                return False
+            return True if made[job[0]] == 0 else None
 
         def launch(job, slot):
             folder, log = where(job)
             log.parent.mkdir(parents=True, exist_ok=True)
-            print(f"{' '.join(job):30} started on GPU {slot} (log: {log})", flush=True)
-            return subprocess.Popen(job_argv(a, job, folder), stdout=log.open("w"), stderr=subprocess.STDOUT,
-                                    env={**os.environ, "CUDA_VISIBLE_DEVICES": slot})
+            print(f"{' '.join(job[:3]):30} started on GPU {slot_device(slot)} (log: {log})", flush=True)
+            argv = data_argv(a, job) if job[1] == DATA else job_argv(a, job, folder)
+            return subprocess.Popen(argv, stdout=log.open("w"), stderr=subprocess.STDOUT,
+                                    env={**os.environ, "CUDA_VISIBLE_DEVICES": slot_device(slot)})
 
-        for job, code in run_jobs(todo, slots, launch):
+        for job, code in run_jobs(list(data.values()) + todo, slots, launch, ready=ready):
             folder, log = where(job)
+            if job[1] == DATA:
+                made[job[0]] = code
+                print(f"{job[0]} datasets " + ("ready" if code == 0 else f"FAILED (exit {code}): see {log}"),
+                      flush=True)
+                continue
+            if code is None:
+                failed.append(job)
+                print(f"{' '.join(job):30} not run: its task's datasets failed", flush=True)
+                continue
             got = folder / "paper.json"
             if code or not got.is_file():
                 failed.append(job)

@@ -427,6 +427,11 @@ def test_shard_and_gpu_slots():
     with pytest.raises(SystemExit, match="only 2 GPU"):
         paper.gpu_slots("3", two)
     assert paper.gpu_slots("all", {"CUDA_VISIBLE_DEVICES": ""}) == ["-"]  # none: one slot, in this process
+    assert paper.job_slots(["2", "5"]) == ["2", "5"]
+    assert paper.job_slots(["2", "5"], 2) == ["2:0", "5:0", "2:1", "5:1"]  # spread over the GPUs first
+    assert [paper.slot_device(s) for s in paper.job_slots(["2", "5"], 2)] == ["2", "5", "2", "5"]
+    with pytest.raises(SystemExit, match="--jobs-per-gpu 0"):
+        paper.job_slots(["0"], 0)
 
 
 def test_jobs_run_one_per_slot_and_queue():
@@ -453,24 +458,88 @@ def test_jobs_run_one_per_slot_and_queue():
     assert most[0] == 2 and sorted(ended) == sorted([("a", 0), ("bb", 0), ("bad", 3), ("c", 0), ("dddd", 0)])
 
 
+def test_jobs_wait_for_what_they_need_and_skip_what_cannot_run():
+    """``ready``: a job that must wait lets a later ready one take the free slot; one that never can run is
+    yielded with exit code None without being launched."""
+    class Proc:
+        def __init__(self, job):
+            self.job, self.left = job, 3
+
+        def poll(self):
+            self.left -= 1
+            return None if self.left > 0 else (1 if self.job == "data-bad" else 0)
+
+    done, launched = set(), []
+
+    def ready(job):
+        need = {"x": "data-ok", "y": "data-bad"}.get(job)
+        if need is None or need == "data-ok" and need in done:
+            return True
+        return None if need == "data-bad" and need in done else False
+
+    def launch(job, slot):
+        launched.append(job)
+        return Proc(job)
+
+    ended = []
+    for job, code in paper.run_jobs(["x", "y", "data-ok", "data-bad", "z"], ["g0"], launch, poll=0, ready=ready):
+        done.add(job)
+        ended.append((job, code))
+    assert launched == ["data-ok", "x", "data-bad", "z"]  # one slot: x waits for data-ok, y for data-bad
+    assert ("y", None) in ended and "y" not in launched and ("data-bad", 1) in ended
+
+
+def test_data_only_makes_every_jobs_datasets_and_trains_nothing(tmp_path, monkeypatch):
+    """``--data-only`` (a sweep's data job) makes the datasets of every task x method x mixture's config and the
+    validation split's varied humans of each task and mixture, and trains nothing."""
+    from cogail_jax.data import sets
+
+    configs, val = [], []
+    monkeypatch.setattr(sets, "make_datasets", lambda cfg: configs.append((cfg.task, cfg.method, cfg.mix)))
+    monkeypatch.setattr(paper, "validation_robustness_sets", lambda t, mix: val.append((t, mix)))
+    monkeypatch.setattr(paper, "run_one", lambda *a, **k: pytest.fail("--data-only trained"))
+    assert paper.main(["--data-only", "--tasks", "fetchq", "--methods", "cogail,diayn", "--mixes", "uniform,D1",
+                       "--out", str(tmp_path / "g")]) == 0
+    assert sorted(configs) == sorted((("fetchq", m, x) for m in ("cogail", "diayn") for x in ("uniform", "D1")))
+    assert val == [("fetchq", "uniform"), ("fetchq", "D1")] and not (tmp_path / "g" / "paper.json").exists()
+
+
 def test_sweep_merges_each_jobs_results_as_it_ends(tmp_path, monkeypatch):
     """``--gpus 2``: every job a process of its own (here a stand-in that writes the job's paper.json; the ma_gail
-    job fails), merged into <out>/paper.json with the tables rewritten; a failed job makes the exit code 1."""
+    job fails), after its task's data job (a stand-in that leaves a file the jobs require), merged into
+    <out>/paper.json with the tables rewritten; a failed job makes the exit code 1. ``--jobs-per-gpu`` runs several
+    jobs on one GPU the same way."""
     import sys
+
+    made, asked = tmp_path / "made", []
+
+    def fake_data_argv(a, job):
+        t, _, mixes, methods = job
+        asked.append((t, mixes, methods))
+        return [sys.executable, "-c", f"import time, pathlib; time.sleep(0.5); pathlib.Path({str(made)!r}).touch()"]
 
     def fake_argv(a, job, out):
         t, m, mix = job
         res = json.dumps({f"{t}/{m}/{mix}": _res(0.55, 0.6)})
         code = ("import sys; sys.exit(2)" if m == "ma_gail" else
-                f"import pathlib; p = pathlib.Path({str(out)!r}); p.mkdir(parents=True, exist_ok=True); "
+                f"import pathlib, sys; pathlib.Path({str(made)!r}).exists() or sys.exit(5); "
+                f"p = pathlib.Path({str(out)!r}); p.mkdir(parents=True, exist_ok=True); "
                 f"(p / 'paper.json').write_text({res!r})")
         return [sys.executable, "-c", code]
 
     monkeypatch.setattr(paper, "job_argv", fake_argv)
+    monkeypatch.setattr(paper, "data_argv", fake_data_argv)
     monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "0,1")  # two GPUs, whatever this machine has
     out = tmp_path / "sweep"
     rc = paper.main(["--tasks", "fetchq", "--methods", "cogail,ma_gail,diayn", "--out", str(out), "--gpus", "2"])
-    assert rc == 1
+    assert rc == 1 and made.exists()
+    made.unlink()
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "0")
+    one = tmp_path / "one-gpu"
+    assert paper.main(["--tasks", "fetchq", "--methods", "cogail,diayn", "--out", str(one), "--gpus", "1",
+                       "--jobs-per-gpu", "2"]) == 0
+    assert set(json.loads((one / "paper.json").read_text())) == {"fetchq/cogail/uniform", "fetchq/diayn/uniform"}
+    assert asked == [("fetchq", "uniform", "cogail,ma_gail,diayn"), ("fetchq", "uniform", "cogail,diayn")]
     merged = json.loads((out / "paper.json").read_text())
     assert set(merged) == {"fetchq/cogail/uniform", "fetchq/diayn/uniform"}
     assert "| cogail | 55.0 +- 1.0 | 60.0 +- 2.0 |" in (out / "table1_replay.md").read_text()

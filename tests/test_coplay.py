@@ -154,6 +154,24 @@ def test_the_proxy_plays_more_episodes_from_the_same_starts(fetchq):
     assert b["proxy"].sum() == 2 * 3 * coplay.PROXY_EPISODES
 
 
+def test_the_scripted_robot_plays_other_episodes_in_each_copy(fetchq):
+    """In each copy of the program (one per seed of the learned robot) the learned robot's episodes start from the
+    same keys, and the scripted robot's from other keys in every copy after the first, none of them an episode of the
+    first copy: its reference rate rests on as many episodes as the learned robot's mean over seeds."""
+    b = coplay.episode_batch(fetchq, [coplay.SCRIPTED, coplay.PROXY], 3, ("learned", "scripted"))
+    keys = np.asarray(coplay.episode_keys(b["index"], b["scripted_robot"], 3))
+    assert keys.shape == (3, len(b["index"]), 2)
+    np.testing.assert_array_equal(keys[0], b["key"])
+    learned = ~b["scripted_robot"]
+    for p in (1, 2):
+        np.testing.assert_array_equal(keys[p][learned], keys[0][learned])
+    for name in (coplay.SCRIPTED, coplay.PROXY):  # per partner, no episode of the scripted robot repeats
+        sel = b["scripted_robot"] & (b["partner"] == name)
+        ref = keys[:, sel].reshape(-1, 2)
+        assert len(ref) == 3 * sel.sum() and len(np.unique(ref, axis=0)) == len(ref)
+    assert not {tuple(k) for k in keys[1:, b["scripted_robot"]].reshape(-1, 2)} & {tuple(k) for k in keys[0]}
+
+
 def test_proxy_trains_on_the_test_split_only(demo_files, fetchq):
     """(b) The proxy refuses any split but the test one, learns deterministically, and records what it learned
     from (the test data's digest)."""
@@ -226,7 +244,7 @@ def test_eval_run_reports_coplay(tiny_cfg, demo_files, fetchq, tmp_path, caplog)
     res = json.loads((run / "results.json").read_text())
     c = res["coplay"]
     names = ["scripted", "slow", "fast", "pauses", "detour", "noise", "change_of_mind", "proxy"]
-    assert c["partners"] == names and c["episodes"] == 1
+    assert c["partners"] == names and c["episodes"] == 1 and c["scripted_robot_copies"] == 2  # seeds 3, 5
     assert c["learned"]["selected"]["checkpoint"] == res["selected"]["checkpoint"]
     assert c["learned"]["paper_protocol"]["checkpoint"] == res["paper_protocol"]["replay"]["checkpoint"]
     for key in ("selected", "paper_protocol"):

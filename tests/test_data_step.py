@@ -58,3 +58,23 @@ def test_data_is_made_by_its_own_step_and_checked_against_the_run(small_splits, 
     test.unlink()
     assert cli.main(["eval", "--run", str(run), "--no-progress", "--no-robustness"]) == 2
     assert "cogail data" in capsys.readouterr().err
+
+
+def test_data_compiles_the_first_training_programs_before_the_data_exist(small_splits, monkeypatch, capsys):
+    """`cogail data` compiles the programs `cogail train` with the same options starts with (the initial state and the
+    training chunk; BC where the config has it) while it makes the datasets, for the shapes the config fixes: the
+    training command then finds every one of them and traces none of its own."""
+    from cogail_jax.runtime import programs
+
+    folder = small_splits / "programs"  # no program of the suite's: every one here is this test's
+    monkeypatch.setattr(programs, "program_dir", lambda: folder)
+    assert cli.main(["data", *TINY, "--no-robustness", "--no-programs"]) == 0
+    assert not folder.exists() and "compiled ahead" not in capsys.readouterr().out
+    for p in (small_splits / "data").glob("*.hdf5"):  # made again below, with the programs compiled meanwhile
+        p.unlink()
+    assert cli.main(["data", *TINY, "--no-robustness"]) == 0
+    assert "training programs compiled ahead in" in capsys.readouterr().out
+    ahead = {p.name for p in folder.glob("*.jaxprog")}
+    assert sorted(n.split("-")[0] for n in ahead) == ["chunk", "init"]
+    assert cli.main(["train", *TINY, "--run", str(small_splits / "run"), "--no-progress"]) == 0
+    assert {p.name for p in folder.glob("*.jaxprog")} == ahead

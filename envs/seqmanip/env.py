@@ -222,7 +222,7 @@ class SeqManip(CollabEnv):
         self._renderer = None
 
     # the observation layout and the team's pose ranges (part of the version fingerprint of generated data)
-    spec_tag = "obs65-object-frame-poses3-prompt-start10-drop-fits-04"
+    spec_tag = "obs65-object-frame-poses3-prompt-start10-drop-fits-04-early-0.04"
     object_frame_dims = tuple(range(43, 65))
     orientation_dims = (*range(3, 9), *range(12, 18), *range(24, 30))  # the TCPs' and the bar's 6D rotations
 

@@ -9,7 +9,8 @@ proportional control with velocity and acceleration limits (bell-shaped, minimum
 profiles). Waiting phases are gated: their timer only runs while the awaited condition holds (e.g. the
 drawer is open and held), so every hand-off has a reaction delay. In the training split's episodes
 (``variations.PROMPT_ROBOT``) the robot is the most prompt of the team's draws (top speed, acceleration and gain,
-the shortest start and reaction delays), so that the learned robot does not keep the person waiting.
+the shortest start and reaction delays, and it starts towards the drop as soon as the human grasps the handle,
+lowering the bar once the drawer is open and held), so that the learned robot does not keep the person waiting.
 The training split is also made in the task's training env (``TASK.train_env``): the robot's gripper starts turned
 by up to +-1.0 rad and up to 8 cm above or below its home height (everywhere else within 3 cm of home, not turned).
 
@@ -118,6 +119,9 @@ LIFTED_SEEN, STILL_SPEED, STILL_STEPS, WAIT_Z, AWAY = 0.03, 0.001, 6, 0.16, 0.06
 # the drop: a bar turned by at most this much (rad, about the vertical; plus half the episode's ``drop[3]``) fits the
 # open drawer at the drop point, so the dropper turns a bar only as far as it must (none within the bound)
 DROP_FITS = 0.4
+# the training split's prompt robot starts towards the drop once the human grasps the handle and the drawer is open by
+# this much (m), and lowers the bar once it is open and held as every robot does (the others start then)
+EARLY_OPEN = 0.04
 
 
 def _rotz(yaw: jax.Array) -> jax.Array:
@@ -189,6 +193,7 @@ class TeamState(NamedTuple):
     seen: jax.Array = np.zeros((3,), np.float32)
     still: jax.Array = np.zeros((), np.int32)
     guess: jax.Array = np.zeros((), np.int32)
+    early: jax.Array = np.zeros((), bool)  # the robot starts towards the drop as the drawer is being opened
 
 
 def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamState, jax.Array]:
@@ -254,6 +259,7 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
         wp_on=jnp.full((2,), v == DETOUR),
         decoy_n=decoy_n.astype(jnp.int32),
         follows=follows,
+        early=fast,
     )
     return ts, strategy
 
@@ -428,9 +434,12 @@ def _robot(env, ts: TeamState, c: dict, seen: dict | None = None):
     else:
         start, holds_open, gone, offers, let_go = (seen[k] for k in ("start", "holds_open", "gone", "offers",
                                                                      "let_go"))
+    open_held = (c["opening"] >= DRAWER_OPEN_MIN) & holds_open
+    early = ts.early & (seen is None)
+    opening = c["h_handle"] & (c["opening"] >= EARLY_OPEN)
     gate = _select(pr, {
         R_WAIT: start,
-        R_WAIT_OPEN: (c["opening"] >= DRAWER_OPEN_MIN) & holds_open,
+        R_WAIT_OPEN: jnp.where(early, opening | open_held, open_held),
         R_HOLD_OPEN: c["placed"] & gone}, True)
     adv = _select(pr, {
         R_WAIT: tr >= ts.delay[1],
@@ -440,7 +449,8 @@ def _robot(env, ts: TeamState, c: dict, seen: dict | None = None):
         R_LIFT: near(lift_r, 0.015),
         R_HOVER: near(ts.wait_pt[1], 0.012),
         R_WAIT_OPEN: tr >= ts.react[1],
-        R_ABOVE_DROP: near(drop_tcp[1] + _up(0.06), 0.012) & _yaw_ok(c, 1, _drop_yaw(c, ts, 1)),
+        R_ABOVE_DROP: near(drop_tcp[1] + _up(0.06), 0.012) & _yaw_ok(c, 1, _drop_yaw(c, ts, 1))
+        & (open_held | ~early),
         R_LOWER: near(drop_tcp[1], 0.008),
         R_RELEASE: c["gap_open"][1] & (tr >= 3),
         R_TO_HANDLE: near(handle_pt[1] + _up(0.07), 0.012) & _yaw_ok(c, 1, 0.0),

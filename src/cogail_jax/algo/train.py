@@ -94,8 +94,11 @@ def make_optimizers(cfg: TrainConfig, hp: dict | None = None):
     return ppo, aux, disc
 
 
-def expert_arrays(demos, history: int) -> dict[str, np.ndarray]:
-    """Flatten padded demonstrations into per-step arrays with psi histories (numpy, done once)."""
+def expert_arrays(demos, history: int, capacity: int = 0) -> dict[str, np.ndarray]:
+    """Flatten padded demonstrations into per-step arrays with psi histories (numpy, done once). ``count``: the
+    number of steps; the arrays have ``max(count, capacity)`` rows, zeros after ``count`` (never sampled), so that a
+    training set's programs can be compiled for shapes its config fixes before the set is made
+    (``runs.expert_capacity``)."""
     obs, ah, ar, hist, prev, demo = [], [], [], [], [], []
     for i in range(demos.num):
         n = int(demos.length[i])
@@ -110,13 +113,22 @@ def expert_arrays(demos, history: int) -> dict[str, np.ndarray]:
         prev.append(p)
         demo.append(np.full((n,), i, np.int32))
     cat = lambda xs: np.concatenate(xs, 0).astype(np.float32)  # noqa: E731
-    return {"obs": cat(obs), "ah": cat(ah), "ar": cat(ar), "hist": cat(hist), "prev_ah": cat(prev),
-            "demo": np.concatenate(demo, 0)}
+    out = {"obs": cat(obs), "ah": cat(ah), "ar": cat(ar), "hist": cat(hist), "prev_ah": cat(prev),
+           "demo": np.concatenate(demo, 0)}
+    count = len(out["demo"])
+    pad = max(int(capacity) - count, 0)
+    out = {k: np.concatenate([v, np.zeros((pad,) + v.shape[1:], v.dtype)]) if pad else v for k, v in out.items()}
+    return {**out, "count": np.int32(count)}
+
+
+def expert_steps(expert) -> Any:
+    """How many rows of ``expert`` are demonstration steps (``count``; all of them in arrays without it)."""
+    return expert["count"] if "count" in expert else expert["obs"].shape[0]
 
 
 def sample_expert(norm, expert, key, n):
     """A minibatch of ``n`` expert steps, observations and histories normalised."""
-    i = jax.random.randint(key, (n,), 0, expert["obs"].shape[0])
+    i = jax.random.randint(key, (n,), 0, expert_steps(expert))
     return {"obs": normalize(norm, expert["obs"][i]), "ah": expert["ah"][i], "ar": expert["ar"][i],
             "hist": history_input(norm, expert["hist"][i]), "prev_ah": expert["prev_ah"][i],
             "demo": expert["demo"][i]}
@@ -439,15 +451,32 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
     code_init = (jnp.arctanh(jnp.asarray(demo_code_init(norm_stats["features"], cfg.code_dim), jnp.float32))
                  if "features" in norm_stats else jnp.zeros((n_demos, cfg.code_dim)))
     # made once: every init() call of these functions reuses the compiled programs, and later runs of the same
-    # config and code load them instead of tracing them again (programs.stored)
-    init_jit = stored(jax.vmap(partial(init_state, ctx, norm, code_init)), "init",
-                     (program_key(cfg), norm, code_init))
+    # config and code load them instead of tracing them again (programs.stored); the normaliser and the initial codes
+    # are the initial state's arguments, so its program does not depend on the data (``compile_ahead``)
+    init_jit = stored(jax.vmap(partial(init_state, ctx), in_axes=(None, None, 0)), "init", program_key(cfg))
     bc_jit = stored(jax.vmap(partial(bc_pretrain, ctx), in_axes=(0, None)), "bc", program_key(cfg))
 
+    def keys(seeds):
+        return jnp.stack([jax.random.PRNGKey(int(s)) for s in seeds])
+
     def init(seeds, expert):
-        state = init_jit(jnp.stack([jax.random.PRNGKey(int(s)) for s in seeds]))
+        state = init_jit(norm, code_init, keys(seeds))
         if cfg.bc_steps:
             state, _ = bc_jit(state, expert)
+        return state
+
+    def compile_ahead(seeds, expert):
+        """Compile the initial state's and BC's programs as ``init(seeds, expert)`` runs them on this process's
+        first device (``expert``: arrays or ``jax.ShapeDtypeStruct``), reading no data; returns the state's
+        shapes, placed as ``init`` places it (for the training chunk's ``lower``)."""
+        k = jax.eval_shape(lambda: keys(seeds))
+        init_jit.lower(norm, code_init, k).compile()
+        here = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+        placed = lambda t: jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=here), t)  # noqa: E731
+        state = placed(init_jit.eval_shape(norm, code_init, k))
+        if cfg.bc_steps:
+            bc_jit.lower(state, expert).compile()
+            state = placed(bc_jit.eval_shape(state, expert)[0])
         return state
 
     def traced(hyper):  # the context with the HYPER values the program is given (parallel.SeedChunk's extra)
@@ -467,11 +496,10 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
         return state, jax.tree.map(lambda x: x[:, :, 0], m)  # (updates, seeds): the same on every shard
 
     def abstract(seeds, expert):  # init's output shapes (from kept programs: no tracing where they are found)
-        key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
-        state = init_jit.eval_shape(jax.ShapeDtypeStruct((len(seeds),) + key.shape, key.dtype))
+        state = init_jit.eval_shape(norm, code_init, jax.eval_shape(lambda: keys(seeds)))
         return bc_jit.eval_shape(state, expert)[0] if cfg.bc_steps else state
 
-    init.abstract = abstract
+    init.abstract, init.compile_ahead = abstract, compile_ahead
     one = chunk if shards.count(cfg) == 1 else chunk_here
     # the update's hyperparameters are the program's argument (``extra``), not constants: a run that changes only
     # their values runs the training program kept for another (``config.chunk_key``)
@@ -496,6 +524,8 @@ def fit_normalizer(expert: dict[str, np.ndarray], std_floor: float = 1e-2, unrea
     demonstrations (BC pre-training learns one code per demonstration) and each demonstration's trajectory
     features (the per-demonstration codes start from their principal components). The observation indices
     ``unread`` normalise to 0 (mean 0, std infinite): no network reads them."""
+    n = int(expert_steps(expert))
+    expert = {k: np.asarray(expert[k])[:n] for k in ("obs", "demo")}
     mean, std = expert["obs"].mean(0), np.maximum(expert["obs"].std(0), std_floor)
     unread = list(unread)
     if unread:
@@ -543,4 +573,4 @@ def demo_code_init(features: np.ndarray, code_dim: int, edge: float = 0.9) -> np
 
 __all__ = ["TrainState", "Context", "ENV_FIELDS", "env_leaves", "make_context", "make_train_fns", "train_step", "aux_step", "disc_step", "ppo_grad",
            "ppo_update", "bc_pretrain",
-           "expert_arrays", "fit_normalizer", "unread_dims", "demo_code_init", "demo_features", "code_grid"]
+           "expert_arrays", "expert_steps", "fit_normalizer", "unread_dims", "demo_code_init", "demo_features", "code_grid"]

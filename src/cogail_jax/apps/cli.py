@@ -5,6 +5,7 @@ import argparse
 import json
 import os
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -151,6 +152,10 @@ def build_parser() -> argparse.ArgumentParser:
     da.add_argument("--run", default=None, help="make the datasets of this run's config instead (its config.json)")
     da.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
                     help="also the varied humans of the robustness evaluation (default on)")
+    da.add_argument("--programs", action=argparse.BooleanOptionalAction, default=True,
+                    help="meanwhile compile the programs `cogail train` with the same options starts with (initial "
+                         "state, BC, the training chunk) into the compilation cache, so that a first run does not "
+                         "wait for them after the data (default on; off without the compilation cache)")
 
     t = sub.add_parser("train", help="train a method on a task (resumable)",
                        description="Train with Co-GAIL (or a baseline preset); every seed runs in one vmapped "
@@ -373,6 +378,25 @@ def _config_from_args(a) -> "TrainConfig":  # noqa: F821
     return resolve(task, a.budget, fields)
 
 
+def _compile_ahead(cfg) -> threading.Thread:
+    """A thread, started, that compiles ``cfg``'s first training programs (``runs.compile_ahead``); its
+    ``seconds`` and ``error`` (None, or what went wrong: it only costs the training command the time) once joined."""
+    from .runs import compile_ahead
+
+    def work():
+        t0 = time.perf_counter()
+        try:
+            compile_ahead(cfg)
+        except Exception as e:  # noqa: BLE001
+            t.error = f"{type(e).__name__}: {e}"
+        t.seconds = time.perf_counter() - t0
+
+    t = threading.Thread(target=work, name="compile-ahead", daemon=True)
+    t.seconds, t.error = 0.0, None
+    t.start()
+    return t
+
+
 def main(argv=None) -> int:
     from ..runtime.timing import mark_process_start
 
@@ -441,14 +465,21 @@ def _dispatch(a) -> int:
         from ..algo.config import TrainConfig
         from ..data.sets import make_datasets
 
+        from ..runtime.programs import program_dir
         from ..runtime.timing import CompileLog
 
         cfg = TrainConfig.load(Path(a.run) / "config.json") if a.run else _config_from_args(a)
         t0, compiles = time.perf_counter(), CompileLog()
+        ahead = _compile_ahead(cfg) if a.programs and program_dir() is not None else None
         for name, path in make_datasets(cfg, robustness=a.robustness).items():
             print(f"{name}: {path}")
         xla = sum(r["backend"] + r["trace"] for r in compiles.table().values())
         print(f"datasets ready in {time.perf_counter() - t0:.1f} s ({xla:.1f} s of it compiling)", flush=True)
+        if ahead is not None:
+            ahead.join()
+            print(f"training programs compiled ahead in {ahead.seconds:.1f} s" if ahead.error is None else
+                  f"warning: compiling the training programs ahead failed ({ahead.error}); `cogail train` compiles "
+                  "them itself", flush=True)
         return 0
     if a.command == "train":
         from .eval_runner import EvalPrep, eval_run, prune_policies, was_pruned

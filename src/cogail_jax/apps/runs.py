@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import jax
+import numpy as np
 
 from ..runtime import checkpoint as ckpt
 from ..data import io as data
@@ -71,7 +72,7 @@ def build(cfg: TrainConfig, need_heldout: bool = True, need_validation: bool | N
     if expert is None:
         files["train"] = sets.split_path(cfg, sets.TRAIN, env=task_env)
         demos = data.load_demos(files["train"], env)
-        expert, train_metrics = train.expert_arrays(demos, cfg.history), demos.metrics
+        expert, train_metrics = train.expert_arrays(demos, cfg.history, expert_capacity(cfg, task_env)), demos.metrics
     heldout, validation = None, None
     if need_heldout:
         files["test"] = sets.split_path(cfg, sets.TEST, env=task_env)
@@ -85,6 +86,46 @@ def build(cfg: TrainConfig, need_heldout: bool = True, need_validation: bool | N
                                                                                train.unread_dims(cfg, env)))
     return Setup(cfg, env, expert, heldout, init, chunk, nets, train_metrics, validation,
                  {k: str(v) for k, v in files.items()})
+
+
+def expert_capacity(cfg: TrainConfig, task_env) -> int:
+    """The rows of the training arrays (``train.expert_arrays``) as ``cfg`` fixes them before its datasets exist:
+    every episode of the generated training set at the task's time limit; 0 (as many as the file's steps) for a
+    training file of the user's."""
+    n = sets.train_episodes(cfg)
+    return 0 if n is None else n * int(task_env.max_episode_steps)
+
+
+def compile_ahead(cfg: TrainConfig) -> None:
+    """Compile the programs a fresh one-device ``cogail train`` of ``cfg`` starts with (the initial state, BC and the
+    training chunk) for the shapes its training arrays will have, without its datasets (``cogail data`` runs this
+    while it makes them): with the compilation cache on, the training command then loads them instead of compiling.
+    A training file of the user's is read for its shapes. Only the training command's own results count: these
+    programs take no data, so what they hold cannot differ from what it would compile."""
+    from cogail_envs import get_task
+
+    cfg = cfg.validate()
+    cfg = cfg.replace(updates_per_call=effective_updates_per_call(cfg))
+    task = get_task(cfg.task)
+    env = task_env = task.make_env()
+    if cfg.max_episode_steps and cfg.max_episode_steps != env.max_episode_steps:
+        env = task.make_env(max_episode_steps=cfg.max_episode_steps)
+    n = sets.train_episodes(cfg)
+    if n is None:
+        demos = data.load_demos(sets.split_path(cfg, sets.TRAIN, env=task_env), env)
+        expert = train.expert_arrays(demos, cfg.history)
+        n = int(demos.num)
+    else:
+        rows, d = expert_capacity(cfg, task_env), env.observation_size
+        f32 = lambda *shape: jax.ShapeDtypeStruct((rows,) + shape, np.float32)  # noqa: E731
+        expert = {"obs": f32(d), "ah": f32(env.human_action_size), "ar": f32(env.robot_action_size),
+                  "hist": f32(cfg.history + 1, d), "prev_ah": f32(env.human_action_size),
+                  "demo": jax.ShapeDtypeStruct((rows,), np.int32), "count": jax.ShapeDtypeStruct((), np.int32)}
+    d = env.observation_size
+    stats = {"mean": np.zeros(d, np.float32), "std": np.ones(d, np.float32), "num_demos": n}  # values unread
+    init, chunk, _ = train.make_train_fns(cfg, env, stats)
+    state = init.compile_ahead(cfg.seeds, expert)
+    chunk.lower(state, expert).compile()
 
 
 def run_metadata() -> dict:

@@ -120,6 +120,8 @@ def expert_struct(run_dir: str | os.PathLike) -> dict | None:
     if "demo" in out:  # the demonstration index of each step: as many demonstrations as training had
         n = len(out["demo"])
         out["demo"] = (np.arange(n) * int(man.get("expert_demos", 1)) // max(n, 1)).astype(out["demo"].dtype)
+    if "count" in out and "obs" in out:  # how many rows are steps: all of them (a zero count samples nothing)
+        out["count"] = np.asarray(len(out["obs"]), out["count"].dtype)
     return out
 
 

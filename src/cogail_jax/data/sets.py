@@ -83,10 +83,19 @@ def run_sets(cfg, robustness: bool = True, make: bool = False, verbose: bool = T
     return out
 
 
+def train_episodes(cfg) -> int | None:
+    """How many episodes ``cfg``'s generated training set holds (known before it is made: the team's split, plus
+    ``train_varied`` per variation); None for a training file of the user's (``cfg.demos``) or a task without a team."""
+    if cfg.demos or not _generated(cfg):
+        return None
+    n = cfg.num_demos or io.default_count(cfg.task, TRAIN)
+    return n + cfg.train_varied * len(varied.VARIATIONS) if cfg.train_varied else n
+
+
 def make_datasets(cfg, robustness: bool = True, verbose: bool = True) -> dict[str, Path]:
     """``cogail data``: make every set of ``cfg``'s run that is missing or stale (all by the task's one generator
     program, :mod:`.generate`, kept in the compilation cache); returns them by name."""
     return run_sets(cfg, robustness=robustness, make=True, verbose=verbose)
 
 
-__all__ = ["split_path", "robustness_paths", "run_sets", "make_datasets", "TRAIN", "VALIDATION", "TEST"]
+__all__ = ["split_path", "robustness_paths", "run_sets", "make_datasets", "train_episodes", "TRAIN", "VALIDATION", "TEST"]

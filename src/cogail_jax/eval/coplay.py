@@ -19,7 +19,10 @@ Every (partner, robot, episode) runs in ONE jitted program (:func:`make_coplay_f
 episodes vmapped, the partner and the robot per-episode data (the variation id, whether the human is the proxy,
 whether the robot is the scripted one), so one compilation serves every partner. Episode ``i`` of every partner
 and robot starts from the same key (``fold_in(PRNGKey(COPLAY_SEED), i)``): the same starting situations and the
-same scripted human draws, paired across partners and robots. A task whose team has no ``human_act`` has the
+same scripted human draws, paired across partners and robots. The program plays every episode once per seed of the
+learned robot; the scripted robot, which has no seed, plays other episodes in each of those copies (copy ``p``:
+episode ``i + p * REF_STRIDE``, :func:`episode_keys`), so that the reference's rate, the denominator of the ratio a
+learned robot is judged by, rests on as many episodes as the learned robot's mean over seeds. A task whose team has no ``human_act`` has the
 proxy alone as partner; one without ``robot_act`` has no scripted reference.
 """
 from __future__ import annotations
@@ -38,10 +41,12 @@ PROXY_SEED = 0  # the proxy's initial parameters
 PROXY_HIDDEN = (256, 256)
 PROXY_LR = 1e-3
 SCRIPTED, PROXY = "scripted", "proxy"
+# the scripted robot's copy p (one per seed of the learned robot) plays episodes i + p * REF_STRIDE
+REF_STRIDE = 1_000_000
 # the proxy plays this many times the other partners' episodes: its success is rare on some tasks (seqmanip's proxy
 # finishes about 1 episode in 10 with any robot), and a ratio of two such rates is noise at the others' count
 PROXY_EPISODES = 4
-EPISODE_KEYS = ("key", "variation", "proxy", "scripted_robot")  # an episode batch's device arrays
+EPISODE_KEYS = ("index", "variation", "proxy", "scripted_robot")  # an episode batch's device arrays
 TEST_SPLIT = "test"
 
 
@@ -190,18 +195,20 @@ def episode_batch(env, names: list[str], episodes: int, robots: tuple = ("learne
                   first: int = 0) -> dict:
     """The co-play episodes of partners ``names`` (``partners(env)``), ``episodes`` each (episodes ``first`` ..
     ``first + episodes - 1``; the proxy ``PROXY_EPISODES`` times as many, its first ``episodes`` the others'), with
-    each of ``robots`` (``learned``, ``scripted``): ``key`` (E, 2), ``variation`` (E,), ``proxy`` (E,) bool,
-    ``scripted_robot`` (E,) bool, and the host-side ``partner`` / ``robot`` labels of each episode."""
+    each of ``robots`` (``learned``, ``scripted``): ``index`` (E,) the episode's number, ``variation`` (E,),
+    ``proxy`` (E,) bool, ``scripted_robot`` (E,) bool, and the host-side ``key`` (E, 2) (copy 0's, see
+    :func:`episode_keys`) and ``partner`` / ``robot`` labels of each episode."""
     from cogail_envs.variations import variation_id
 
     most = episodes * (PROXY_EPISODES if PROXY in names else 1)
-    keys = np.asarray(jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(COPLAY_SEED), i))(
-        jnp.arange(first, first + most)))
-    rows = {"key": [], "variation": [], "proxy": [], "scripted_robot": [], "partner": [], "robot": []}
+    if first + most > REF_STRIDE:
+        raise CoplayError(f"co-play plays at most {REF_STRIDE} episodes per partner: ask for fewer episodes")
+    index = np.arange(first, first + most, dtype=np.int32)
+    rows = {"index": [], "variation": [], "proxy": [], "scripted_robot": [], "partner": [], "robot": []}
     for robot in robots:
         for name in names:
             n = episodes * (PROXY_EPISODES if name == PROXY else 1)
-            rows["key"].append(keys[:n])
+            rows["index"].append(index[:n])
             rows["variation"].append(np.full(n, 0 if name in (SCRIPTED, PROXY) else variation_id(name),
                                              np.int32))
             rows["proxy"].append(np.full(n, name == PROXY))
@@ -210,7 +217,19 @@ def episode_batch(env, names: list[str], episodes: int, robots: tuple = ("learne
             rows["robot"] += [robot] * n
     out = {k: np.concatenate(v) for k, v in rows.items() if k not in ("partner", "robot")}
     out["partner"], out["robot"] = np.asarray(rows["partner"]), np.asarray(rows["robot"])
+    out["key"] = np.asarray(episode_keys(out["index"], out["scripted_robot"], 1)[0])
     return out
+
+
+def episode_keys(index, scripted_robot, copies: int) -> jax.Array:
+    """(copies, E, 2): each episode's key in each copy of the program (one per seed of the learned robot):
+    ``fold_in(PRNGKey(COPLAY_SEED), index)`` for the learned robot's episodes in every copy and for the scripted
+    robot's in copy 0; the scripted robot's copy ``p`` plays episode ``index + p * REF_STRIDE`` instead (other starts
+    and other human draws), where a robot without a seed would otherwise repeat copy 0."""
+    index, scripted_robot = jnp.asarray(index), jnp.asarray(scripted_robot)
+    p = jnp.arange(copies, dtype=index.dtype)[:, None]
+    shifted = index[None] + jnp.where(scripted_robot[None], p * REF_STRIDE, 0)
+    return jax.vmap(jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(COPLAY_SEED), i)))(shifted)
 
 
 def _flat(x):
@@ -241,14 +260,14 @@ def make_coplay_fn(env, cfg=None, nets=None):
         K = 0
     H = max(K, max(PROXY_LAGS))  # observations kept: psi's K + 1 and the proxy's
 
-    def start(ep):
-        k_init, k_team, k_run = jax.random.split(ep["key"], 3)
+    def start(key, ep):
+        k_init, k_team, k_run = jax.random.split(key, 3)
         state = env.reset_from(env.sample_init(k_init))
         ts_h = ts_r = ()
         if human_act is not None:
             ts_h, _ = team.init(env, k_team, env.uniform_mix(), jnp.where(ep["proxy"], NONE, ep["variation"]))
         if robot_act is not None:
-            ts_r, _ = team.init(env, jax.random.fold_in(ep["key"], ROBOT_SALT), env.uniform_mix(), NONE)
+            ts_r, _ = team.init(env, jax.random.fold_in(key, ROBOT_SALT), env.uniform_mix(), NONE)
         return state, ts_h, ts_r, k_run
 
     def act(params, norm, proxy, state, hist, prev_ah, ts_h, ts_r, k_run, ep):
@@ -272,10 +291,11 @@ def make_coplay_fn(env, cfg=None, nets=None):
     per_param = jax.vmap(per_ep, in_axes=(0, 0, None, 0, 0, 0, 0, 0, 0, None))
 
     def run(params, norm, proxy, eps):
-        E = eps["key"].shape[0]
+        E = eps["index"].shape[0]
         P = jax.tree.leaves(params)[0].shape[0] if learned else 1
-        first = jax.vmap(start)(eps)
-        state, ts_h, ts_r, k_run = jax.tree.map(lambda x: _flat(jnp.broadcast_to(x, (P,) + x.shape)), first)
+        keys = episode_keys(eps["index"], eps["scripted_robot"], P)
+        first = jax.vmap(jax.vmap(start), in_axes=(0, None))(keys, eps)
+        state, ts_h, ts_r, k_run = jax.tree.map(_flat, first)
         hist = jnp.repeat(state.obs[:, None], H + 1, 1)
         unflat = lambda x: x.reshape((P, E) + x.shape[1:])  # noqa: E731
 
@@ -382,10 +402,12 @@ def evaluate(s, checkpoints: dict[str, tuple[int, dict]], episodes: int | None =
                                                                         batch)))
         out = done[step]
         learned[key] = {"checkpoint": int(step), "success": _per_partner(out["success"], batch, "learned", cfg.seeds)}
-        if p.scripted and ref is None:
-            ref = {k: v["mean"] for k, v in _per_partner(out["success"][:1], batch, "scripted", [0]).items()}
+        if p.scripted and ref is None:  # each copy played other episodes: the mean over all of them
+            copies = out["success"].shape[0]
+            ref = {k: v["mean"] for k, v in _per_partner(out["success"], batch, "scripted", range(copies)).items()}
     res = {"partners": p.names, "episodes": p.episodes,
            "proxy_episodes": p.episodes * PROXY_EPISODES if PROXY in p.names else 0, "seed": COPLAY_SEED,
+           "scripted_robot_copies": len(cfg.seeds) if p.scripted else 0,
            "learned": learned,
            "scripted_robot": ref, "proxy": dict(p.proxy_info)}
     if ref is not None:
@@ -401,8 +423,11 @@ def markdown(c: dict) -> list[str]:
     if c.get("scripted_robot"):
         head.append("scripted robot (reference)")
     proxy_n = f", the proxy {c['proxy_episodes']}" if c.get("proxy_episodes") else ""
+    copies = c.get("scripted_robot_copies") or 1
+    ref_n = (f"; the scripted robot {copies} times as many, its first ones from the same starts"
+             if c.get("scripted_robot") and copies > 1 else ", the same starts for every partner and robot")
     lines = ["", "Closed-loop co-play (success, %; mean +- std over seeds; "
-             f"{c['episodes']} episodes per partner{proxy_n}, the same starts for every partner and robot):", "",
+             f"{c['episodes']} episodes per partner{proxy_n}{ref_n}):", "",
              "| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
     for name in c["partners"]:
         row = [name]
@@ -460,5 +485,5 @@ def figure(c: dict, out_png, title: str | None = None) -> Path:
     return out_png
 
 
-__all__ = ["partners", "has_scripted_robot", "Proxy", "PROXY_LAGS", "proxy_inputs", "proxy_action", "train_proxy", "data_digest", "episode_batch", "Prepared", "prepare",
+__all__ = ["partners", "has_scripted_robot", "Proxy", "PROXY_LAGS", "proxy_inputs", "proxy_action", "train_proxy", "data_digest", "episode_batch", "episode_keys", "Prepared", "prepare",
            "make_coplay_fn", "evaluate", "markdown", "figure", "CoplayError", "COPLAY_SEED", "SCRIPTED", "PROXY"]

@@ -5,8 +5,10 @@
 * ``warm``: the same commands again, into a new run folder;
 * ``new-config``: a config not trained before (``--set bc_coef=5``), with the datasets on disk,
 
-then the run folders' sizes (without tb/), whether the cold and warm results.json are the same file, and the
-phases and compilations of each run (``cogail bench --phases``).
+then the run folders' sizes (without tb/), whether the cold and warm results.json are the same file, the phases
+and compilations of each run (``cogail bench --phases``), and the training command's seconds outside its phases
+(interpreter and imports before its clock starts, pruning and exit after; of it, the seconds after its last line of
+output). Each log line carries its seconds since its command started.
 
     python experiments/first_run.py --tasks fetchq,handover,seqmanip --out runs/first-run
 
@@ -35,15 +37,23 @@ def folder_mb(path: Path, skip: str = "tb") -> float:
                ) / 1e6
 
 
-def timed(args: list[str], env: dict, log: Path) -> float:
+def timed(args: list[str], env: dict, log: Path) -> tuple[float, float]:
+    """Run ``args``, its output into ``log`` with each line's seconds since the start; returns (seconds, seconds
+    after its last line of output: the command's exit)."""
     t0 = time.perf_counter()
+    last = 0.0
     with log.open("a") as f:
         f.write(f"$ {' '.join(args)}\n")
         f.flush()
-        r = subprocess.run(args, env=env, stdout=f, stderr=subprocess.STDOUT)
-    if r.returncode:
-        sys.exit(f"{' '.join(args)} failed (exit {r.returncode}): see {log}")
-    return time.perf_counter() - t0
+        with subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as proc:
+            for line in proc.stdout:
+                last = time.perf_counter() - t0
+                f.write(f"{last:8.1f} | {line}")
+        code = proc.wait()
+    if code:
+        sys.exit(f"{' '.join(args)} failed (exit {code}): see {log}")
+    total = time.perf_counter() - t0
+    return total, total - last
 
 
 def data_account(log: Path) -> dict:
@@ -54,7 +64,8 @@ def data_account(log: Path) -> dict:
 
 
 def run_task(task: str, out: Path, seeds: str, budget: str, cases=tuple(c for c, _ in CASES)) -> list[dict]:
-    env = {**os.environ, "COGAIL_CACHE": str(out / "cache"), "COGAIL_DATA": str(out / "data")}
+    env = {**os.environ, "COGAIL_CACHE": str(out / "cache"), "COGAIL_DATA": str(out / "data"),
+           "PYTHONUNBUFFERED": "1"}  # each line logged as it is printed
     cogail = [sys.executable, "-m", "cogail_jax.apps.cli"]
     common = ["--task", task, "--budget", budget, "--seeds", seeds]
     rows = []
@@ -65,12 +76,14 @@ def run_task(task: str, out: Path, seeds: str, budget: str, cases=tuple(c for c,
         shutil.rmtree(run, ignore_errors=True)
         log = out / f"{task}-{case}.log"
         log.unlink(missing_ok=True)
-        t_data = timed([*cogail, "data", *common, *extra], env, log)
+        t_data, _ = timed([*cogail, "data", *common, *extra], env, log)
         account = data_account(log)
-        t_train = timed([*cogail, "train", *common, *extra, "--run", str(run), "--eval", "--no-progress"], env, log)
-        speed = json.loads((run / "speed.json").read_text())
+        t_train, exit_s = timed([*cogail, "train", *common, *extra, "--run", str(run), "--eval", "--no-progress"], env,
+                                log)
+        phases = json.loads((run / "speed.json").read_text()).get("phases") or {}
         rows.append({"task": task, "case": case, "data_s": t_data, "train_s": t_train, "total_s": t_data + t_train,
-                     "run_mb": folder_mb(run), "phases": speed.get("phases"), "run": str(run), **account})
+                     "run_mb": folder_mb(run), "phases": phases, "run": str(run),
+                     "outside_phases_s": t_train - sum(phases.values()), "train_exit_s": exit_s, **account})
         print(f"{task} {case}: data {t_data:.1f} s + train {t_train:.1f} s = {t_data + t_train:.1f} s, "
               f"run folder {rows[-1]['run_mb']:.1f} MB", flush=True)
         (out / f"{task}-{case}.json").write_text(json.dumps(rows[-1], indent=1))
@@ -83,13 +96,14 @@ def run_task(task: str, out: Path, seeds: str, budget: str, cases=tuple(c for c,
 
 def table(rows: list[dict]) -> str:
     lines = ["| task | case | `cogail data` s (compiling) | `cogail train --eval` s | whole s | run folder MB (no tb/) | "
-             "phases: start / demos / bc / compile / train / eval / write |", "|---|---|---|---|---|---|---|"]
+             "phases: start / demos / bc / compile / train / eval / write | outside the phases (of it after the last output) |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         ph = r["phases"] or {}
         split = " / ".join(f"{ph.get(p, 0):.1f}" for p in ("start", "demos", "bc", "compile", "train", "eval", "write"))
         comp = f" ({r['data_compile_s']:.1f})" if "data_compile_s" in r else ""
         lines.append(f"| {r['task']} | {r['case']} | {r['data_s']:.1f}{comp} | {r['train_s']:.1f} | **{r['total_s']:.1f}** | "
-                     f"{r['run_mb']:.1f} | {split} |")
+                     f"{r['run_mb']:.1f} | {split} | {r['outside_phases_s']:.1f} ({r['train_exit_s']:.1f}) |")
     same = {r["task"]: r["cold_warm_results_identical"] for r in rows}
     lines += ["", "cold and warm results.json identical (byte for byte): "
               + ", ".join(f"{t} {'yes' if v else 'NO'}" for t, v in same.items())]

@@ -13,10 +13,12 @@ EXTRA ?=
 .PHONY: install browser train eval test demos video bench first-run clean help paper paper-check paper-compare
 
 help:
-	@echo "make train [TASK=fetchq|handover|seqmanip] [METHOD=cogail|ma_infogail|ma_gail] [SEEDS=300,400,500] [BUDGET=paper|quick|2x] [RUN=dir]"
+	@echo "make train [TASK=fetchq|handover|seqmanip|module:TASK] [METHOD=cogail|ma_infogail|ma_gail|bc_gail|bc_single|diayn]"
+	@echo "           [SEEDS=300,400,500] [BUDGET=paper|quick|2x] [RUN=dir] [EXTRA='--set FIELD=VALUE ...']"
 	@echo "make eval RUN=dir | make test | make demos TASK=... (the run's datasets) | make video RUN=dir | make bench"
-	@echo "make first-run [TASKS=fetchq,handover,seqmanip] (cold, warm and new-config make train, timed)"
-	@echo "make paper [TASKS=fetchq,handover,seqmanip] [METHODS=...] | make paper-check | make paper-compare | make install [CPU=1] [DRY_RUN=1]"
+	@echo "make first-run [TASKS=fetchq] (cold, warm and new-config make train, timed; TASKS=fetchq,handover,seqmanip)"
+	@echo "make paper [TASKS=fetchq] [METHODS=...] [MIXES=uniform,D1,D2] [GPUS=all] [JOBS_PER_GPU=1] [SHARD=i/n]"
+	@echo "make paper-check | make paper-compare | make install [CPU=1] [DRY_RUN=1] | make clean (deletes runs/)"
 
 $(BIN)/.installed: pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)

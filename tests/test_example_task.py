@@ -78,5 +78,14 @@ def test_the_example_task_makes_and_imports_demonstrations(tmp_path, monkeypatch
     assert cli.main(["demos", "--task", TASK, "--num", "6", "--out", str(demos)]) == 0
     assert "wrote 6 table_carry demonstrations" in capsys.readouterr().out
     assert cli.main(["import", "--task", TASK, "--in", str(demos), "--out", str(tmp_path / "mine.hdf5")]) == 0
+    import numpy as np
+    from cogail_envs import make_env
+    from cogail_jax.data import io as data
+
+    env = make_env(TASK)
+    made, mine = data.load_demos(demos, env), data.load_demos(tmp_path / "mine.hdf5", env)  # the same episodes
+    assert len(mine.length) == 6
+    for field in ("obs", "actions_human", "actions_robot", "length", "strategy"):
+        np.testing.assert_array_equal(getattr(mine, field), getattr(made, field))
     assert cli.main(["import", "--task", "fetchq", "--in", str(demos), "--out", str(tmp_path / "x.hdf5")]) == 2
     assert "not 'fetchq'" in capsys.readouterr().err

@@ -33,6 +33,10 @@ def test_one_compiled_program_makes_every_set(fetchq):
     np.testing.assert_array_equal(b["valid_executed"], rep["executed"])
     assert "valid_success" not in a
     assert np.all(c["strategy"] >= 1) and np.array_equal(c["init"], whole["init"][:2])
+    # a robot kept to strategy 1 whatever its human does: these two humans go for other strategies, which their
+    # own teams carry out and which fail with it
+    assert 1 not in whole["strategy"][:2] and np.array_equal(whole["executed"][:2], whole["strategy"][:2])
+    assert np.all(c["executed"] == 0)
     # sets of other sizes (and the varied-human sets) reuse the one compilation
     generate.generate(fetchq, 3, seed=11)
     varied.generate_varied(fetchq, "slow", 2, seed=99)

@@ -114,6 +114,16 @@ def test_import_project_file_is_a_validated_copy(tmp_path, fetchq):
     a, b = data.load_demos(train, fetchq), data.load_demos(tmp_path / "copy.hdf5", fetchq)
     np.testing.assert_array_equal(a.obs, b.obs)
     np.testing.assert_array_equal(a.strategy, b.strategy)
+    import shutil
+
+    import h5py
+
+    shutil.copy(train, tmp_path / "bad.hdf5")  # a damaged project file is refused, and nothing is written
+    with h5py.File(tmp_path / "bad.hdf5", "r+") as f:
+        f["data/demo_1/obs"][2, 0] = np.nan
+    with pytest.raises(data.DatasetError, match="demo_1.*NaN"):
+        import_demos(tmp_path / "bad.hdf5", tmp_path / "out.hdf5", "fetchq")
+    assert not (tmp_path / "out.hdf5").exists()
 
 
 # ----------------------------------------------------------------------------------------------- errors

@@ -108,7 +108,7 @@ def test_two_processes_resumed_equal_one_process(runs):
     assert info["layout"]["device_count"] == 2
     for step in (2, 4, 6):  # every checkpoint's delivered policy, bit for bit
         a, b = _policy(d / "two", step), _policy(d / "one", step)
-        assert all(np.array_equal(x, y) for x, y in zip(a, b)), step
+        assert len(a) == len(b) > 0 and all(np.array_equal(x, y) for x, y in zip(a, b)), step
     # process 0 alone wrote the run folder: one TensorBoard log, the newest full state only
     assert sorted(p.name for p in (d / "two" / "tb").iterdir()) == ["seed_3"]
     assert sorted(p.name for p in (d / "two" / "checkpoints").iterdir() if p.name.isdigit()) == ["6"]
@@ -128,7 +128,7 @@ def test_two_processes_per_device_seeds(tmp_path, demo_files):
     for rc, text in two + one:
         assert rc == 0, text[-3000:]
     a, b = _policy(tmp_path / "two", 2), _policy(tmp_path / "one", 2)
-    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert len(a) == len(b) > 0 and all(np.array_equal(x, y) for x, y in zip(a, b))
     assert a[0].shape[0] == 2  # both seeds, gathered from the two processes
 
 

@@ -272,11 +272,20 @@ def test_background_saver_queues_in_order_and_reports_errors(tmp_path, monkeypat
     state = {"x": jax.numpy.ones(2)}
     saver.submit(1, saver.copy(state))
     saver.submit(2, saver.copy({"x": state["x"] * 2}))
-    assert len(saver._pending) == 2 and not written  # queued, nothing written yet, the caller not blocked
-    gate.set()
+    assert len(saver._pending) == ckpt.BackgroundSaver.MAX_PENDING == 2 and not written  # queued, caller not blocked
+    threading = __import__("threading")
+    threading.Timer(0.3, gate.set).start()
+    t0 = time.perf_counter()
+    saver.submit(4, saver.copy({"x": state["x"] * 4}))  # a third waits until the oldest is written
+    assert time.perf_counter() - t0 >= 0.25 and written[:1] == [(1, 1.0)]
     saver.wait()
-    assert written == [(1, 1.0), (2, 2.0)]
+    assert written == [(1, 1.0), (2, 2.0), (4, 4.0)]
     saver.submit(3, saver.copy(state))
-    with pytest.raises(OSError, match="disk full"):
+    while not saver._pending[0].done():
+        time.sleep(0.01)
+    with pytest.raises(OSError, match="disk full"):  # the failed write surfaces at the next submit
+        saver.submit(5, saver.copy(state))
+    saver.submit(3, saver.copy(state))
+    with pytest.raises(OSError, match="disk full"):  # or at wait
         saver.wait()
     saver.close()

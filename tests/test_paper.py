@@ -293,6 +293,13 @@ def test_learning_curves_figure(tmp_path):
                "handover/ma_gail/uniform": with_curves}  # another method: not drawn
     assert paper.curves_png(results, tmp_path / "curves.png")
     assert (tmp_path / "curves.png").stat().st_size > 10_000
+    import matplotlib.image
+
+    h, w = matplotlib.image.imread(tmp_path / "curves.png").shape[:2]
+    assert w < h  # one column (fetchq): handover's row is another method's
+    assert paper.curves_png({**results, "handover/cogail/uniform": with_curves}, tmp_path / "two.png")
+    h, w = matplotlib.image.imread(tmp_path / "two.png").shape[:2]
+    assert w > h  # a column per task
 
 
 def test_readme_shows_the_shipped_settings_with_their_last_checkpoint_and_robustness(tmp_path):

@@ -1,7 +1,7 @@
 """Robustness sets (varied scripted humans): validated episodes, the intended differences, the blind robot.
 
 fetchq carries most checks (one compiled rollout and one compiled replay serve all six variations); the MJX
-tasks get one tiny set each (handover always; seqmanip, 600 steps, only with COGAIL_SLOW_TESTS=1).
+tasks get one tiny set each (seqmanip's with 600-step episodes).
 """
 from __future__ import annotations
 
@@ -175,8 +175,7 @@ def test_figure(tmp_path):
     assert out.exists() and out.stat().st_size > 1000
 
 
-@pytest.mark.parametrize("task", ["handover", pytest.param("seqmanip", marks=pytest.mark.skipif(
-    not os.environ.get("COGAIL_SLOW_TESTS"), reason="seqmanip: set COGAIL_SLOW_TESTS=1 (600-step MJX compile)"))])
+@pytest.mark.parametrize("task", ["handover", "seqmanip"])
 def test_mjx_sets_validate(task, tmp_path):
     """Tiny MJX sets: 2 varied episodes, validated by open-loop re-simulation, with the human's pauses in them."""
     import cogail_envs
@@ -224,8 +223,6 @@ def test_varied_training_set_adds_validated_varied_humans_to_the_team(fetchq, fq
         TrainConfig(task="fetchq", train_varied=2, demos="mine.hdf5").validate()
 
 
-@pytest.mark.skipif(not os.environ.get("COGAIL_SLOW_TESTS"),
-                    reason="seqmanip: set COGAIL_SLOW_TESTS=1 (600-step MJX compile)")
 def test_following_partner_guesses_then_recovers(tmp_path):
     """seqmanip's training change of mind: the same humans (same draws), a robot that starts on the strategy the
     human's first leg suggests -- its actions part from the plan-reading robot's before the human's do -- and

@@ -75,6 +75,14 @@ def test_data_compiles_the_first_training_programs_before_the_data_exist(small_s
     assert cli.main(["data", *TINY, "--no-robustness"]) == 0
     assert "training programs compiled ahead in" in capsys.readouterr().out
     ahead = {p.name for p in folder.glob("*.jaxprog")}
+    for p in folder.glob("*.jaxprog"):  # every set on disk: nothing to make, so nothing compiled beside it
+        p.unlink()
+    assert cli.main(["data", *TINY, "--no-robustness"]) == 0
+    assert "compiled ahead" not in capsys.readouterr().out and not list(folder.glob("*.jaxprog"))
+    for p in (small_splits / "data").glob("*.hdf5"):  # made again, with the programs compiled beside them
+        p.unlink()
+    assert cli.main(["data", *TINY, "--no-robustness"]) == 0
+    assert {p.name for p in folder.glob("*.jaxprog")} == ahead
     assert sorted(n.split("-")[0] for n in ahead) == ["chunk", "init"]
     assert cli.main(["train", *TINY, "--run", str(small_splits / "run"), "--no-progress"]) == 0
     assert {p.name for p in folder.glob("*.jaxprog")} == ahead

@@ -71,9 +71,9 @@ def test_bench_phases_prints_a_table_of_runs(tmp_path, capsys):
     assert lines[2].startswith(f"| {run} | handover | 0.0 | 1.5 | 2.0 | 3.0 | 40.0 | 7.0 | 0.5 | ")
     assert lines[2].endswith(" | 100 |")
     assert lines[3] == f"| {old} | - | - | - | - | - | - | - | - | - | 2e+05 |"
-    assert lines[5].startswith("| run | bc_run | chunk_compile | compile_wait | calls | median_call |")
-    assert lines[7] == f"| {run} | 0.0 | 0.0 | 0.0 | 0 | 0.000 | 0.0 | 0.0 | 0.0 | 0.0 | 0.0 | 0.0 |"
-    assert lines[8] == f"| {old} | " + " | ".join(["-"] * 11) + " |"
+    assert lines[5].startswith("| run | bc_run | chunk_compile | compile_wait | first_checkpoint | calls | median_call |")
+    assert lines[7] == f"| {run} | 0.0 | 0.0 | 0.0 | 0.0 | 0 | 0.000 | 0.0 | 0.0 | 0.0 | 0.0 | 0.0 | 0.0 | 0.0 | 0.0 |"
+    assert lines[8] == f"| {old} | " + " | ".join(["-"] * 14) + " |"
 
     assert cli.main(["bench", "--phases", str(tmp_path / "none")]) == 2
     err = capsys.readouterr().err.strip().splitlines()

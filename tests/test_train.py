@@ -239,6 +239,10 @@ def test_resume_is_exact(tiny_cfg, tmp_path):
     assert speed["compiles"]["chunk"]["count"] == 1  # compiled beside init and BC, for the shapes the calls have
     assert parts["calls"] == runs.total_updates(tiny_cfg) // tiny_cfg.updates_per_call - 1
     assert parts["median_call"] > 0 and parts["checkpoint_excess"] >= 0 and parts["other_excess"] >= 0
+    assert parts["first_checkpoint"] > 0 and parts["loop_setup"] > 0 and parts["loop_close"] > 0
+    # the training phases account for the whole training call: nothing it does goes untimed
+    train_phases = sum(speed["phases"][p] for p in timing.TRAIN_PHASES)
+    assert train_phases <= speed["wall"]["train"] <= train_phases + 0.05 * train_phases + 0.5
 
 
 def test_policy_average_is_delivered_and_leaves_training_alone(setup, tiny_cfg, fetchq, tmp_path):

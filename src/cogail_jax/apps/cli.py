@@ -153,9 +153,10 @@ def build_parser() -> argparse.ArgumentParser:
     da.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
                     help="also the varied humans of the robustness evaluation (default on)")
     da.add_argument("--programs", action=argparse.BooleanOptionalAction, default=True,
-                    help="meanwhile compile the programs `cogail train` with the same options starts with (initial "
-                         "state, BC, the training chunk) into the compilation cache, so that a first run does not "
-                         "wait for them after the data (default on; off without the compilation cache)")
+                    help="while making the datasets, compile the programs `cogail train` with the same options starts "
+                         "with (initial state, BC, the training chunk) into the compilation cache, so that a first run "
+                         "does not wait for them after the data (default on; off without the compilation cache, and "
+                         "when every set is already on disk)")
 
     t = sub.add_parser("train", help="train a method on a task (resumable)",
                        description="Train with Co-GAIL (or a baseline preset); every seed runs in one vmapped "
@@ -378,6 +379,18 @@ def _config_from_args(a) -> "TrainConfig":  # noqa: F821
     return resolve(task, a.budget, fields)
 
 
+def _sets_on_disk(cfg, robustness: bool) -> bool:
+    """Whether every set of ``cfg``'s run is on disk and current (``cogail data`` has nothing to make)."""
+    from ..data.io import MissingDataError
+    from ..data.sets import run_sets
+
+    try:
+        run_sets(cfg, robustness=robustness, verbose=False)
+    except MissingDataError:
+        return False
+    return True
+
+
 def _compile_ahead(cfg) -> threading.Thread:
     """A thread, started, that compiles ``cfg``'s first training programs (``runs.compile_ahead``); its
     ``seconds`` and ``error`` (None, or what went wrong: it only costs the training command the time) once joined."""
@@ -470,7 +483,9 @@ def _dispatch(a) -> int:
 
         cfg = TrainConfig.load(Path(a.run) / "config.json") if a.run else _config_from_args(a)
         t0, compiles = time.perf_counter(), CompileLog()
-        ahead = _compile_ahead(cfg) if a.programs and program_dir() is not None else None
+        # with every set on disk there is nothing to compile beside: `cogail train` loads or compiles its programs
+        ahead = (_compile_ahead(cfg) if a.programs and program_dir() is not None
+                 and not _sets_on_disk(cfg, a.robustness) else None)
         for name, path in make_datasets(cfg, robustness=a.robustness).items():
             print(f"{name}: {path}")
         xla = sum(r["backend"] + r["trace"] for r in compiles.table().values())

@@ -102,6 +102,8 @@ class LoopStats:
     loop_seconds: float = 0.0
     steady_steps: int = 0
     steady_seconds: float = 0.0
+    setup_seconds: float = 0.0  # the loop's TensorBoard writers and checkpoint saver made
+    close_seconds: float = 0.0  # and closed
     checkpoint_calls: set = field(default_factory=set)  # calls that copied or queued a checkpoint
 
 
@@ -153,8 +155,9 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
     cfg = s.cfg
     state, start = None, 0
     if resume:  # restored onto this process's first device, whatever layout saved it; placed below
-        abstract = s.init.abstract(cfg.seeds, s.expert)
-        step, state = ckpt.restore_latest_valid(mgr, abstract)
+        with clock("start"):
+            abstract = s.init.abstract(cfg.seeds, s.expert)
+            step, state = ckpt.restore_latest_valid(mgr, abstract)
         if step is not None:
             start = step
             print(f"resuming {run_dir} from update {step}", flush=True)
@@ -173,6 +176,7 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
             for t in compiling:
                 t.join()
             parts.update(bc_run=t1 - t0, compile_wait=time.perf_counter() - t1)
+    t_place = time.perf_counter()
     state, s.expert = place_on_devices(state, s.expert, devices, len(cfg.seeds), cfg.env_shards)
     here = ckpt.layout(state)
     if fresh:  # (no policy: evaluation starts at the first checkpoint)
@@ -189,6 +193,8 @@ def _start_state(s: Setup, mgr, run_dir: Path, resume: bool, devices, clock: tim
                   flush=True)
     if distributed.primary():
         ckpt.record_layout(run_dir, here, start)
+    parts["first_checkpoint"] = time.perf_counter() - t_place  # placing the state, and a fresh run's update 0 written
+    clock.add("bc" if fresh else "start", parts["first_checkpoint"])
     return state, start, bool(compiling)
 
 
@@ -228,11 +234,13 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
 
     cfg, upc, total = s.cfg, s.cfg.updates_per_call, total_updates(s.cfg)
     writes = distributed.primary()  # of several processes, process 0 alone writes (runtime.distributed)
+    t_setup = time.perf_counter()
     writers = [FileWriter(str(run_dir / "tb" / f"seed_{sd}")) for sd in cfg.seeds] if writes else []
     bar = tqdm(total=total, initial=start, unit="upd", disable=not (progress and writes), dynamic_ncols=True,
                file=sys.stdout)
     saver = ckpt.BackgroundSaver(mgr, ckpt.manager(run_dir, folder=ckpt.POLICIES), json.loads(cfg.to_json()))
     stats, t_loop = LoopStats(start, []), time.perf_counter()
+    stats.setup_seconds = t_loop - t_setup
     pending = None  # (first update, device metrics, (update, state copy) or None) of the call not logged yet
 
     def drain():
@@ -277,10 +285,12 @@ def _train_loop(s: Setup, state, mgr, run_dir: Path, start: int, progress: bool,
         stats.loop_seconds = time.perf_counter() - t_loop
         stats.steady_seconds = stats.loop_seconds - stats.call_seconds[0] if stats.call_seconds else 0.0
     finally:
+        t_close = time.perf_counter()
         saver.close()
         bar.close()
         for w in writers:
             w.close()
+        stats.close_seconds = time.perf_counter() - t_close
     return stats
 
 
@@ -317,14 +327,16 @@ def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progr
     if keep_full is not None and keep_full < 1:
         raise RunError(f"--keep-full {keep_full}: a run keeps at least its newest training state (resume needs it); "
                        "pass 1 or more, or all")
-    mgr = ckpt.manager(run_dir, keep=keep_full)
+    with clock("start"):
+        mgr = ckpt.manager(run_dir, keep=keep_full)
     parts: dict = {}
     state, start, called = _start_state(s, mgr, run_dir, resume, devices, clock, on_compiled, parts)
     stats = _train_loop(s, state, mgr, run_dir, start, progress, stop_after, keep, None if called else on_compiled)
     compile_s = timing.compile_estimate(stats.call_seconds)
     clock.add("compile", compile_s)
-    clock.add("train", stats.loop_seconds - compile_s)
-    parts.update(timing.call_parts(stats.call_seconds, stats.checkpoint_calls))
+    clock.add("train", stats.loop_seconds - compile_s + stats.setup_seconds + stats.close_seconds)
+    parts.update(timing.call_parts(stats.call_seconds, stats.checkpoint_calls), loop_setup=stats.setup_seconds,
+                 loop_close=stats.close_seconds)
     if not writes:
         return run_dir
     timing.write(run_dir, timing.merge_train(

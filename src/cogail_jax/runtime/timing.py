@@ -46,9 +46,11 @@ EVAL_PARTS = ("setup", "checkpoints", "extra_sets", "prepared")
 # ``median_call``, their median seconds; ``checkpoint_excess`` / ``other_excess``: the seconds over the median of
 # the calls that copied or queued a checkpoint, and of the others (an upper bound on what checkpoints cost: where
 # the pipelined calls alternate in length, as on a 2-core CPU, the excess mostly measures that; a run with fewer
-# checkpoints measures their cost).
-TRAIN_PARTS = ("bc_run", "chunk_compile", "compile_wait", "calls", "median_call", "checkpoint_excess",
-               "other_excess")
+# checkpoints measures their cost); ``first_checkpoint``, placing the state on the devices and writing a fresh
+# run's update 0 (in the bc phase; on resume, start); ``loop_setup`` / ``loop_close``, making and closing the
+# loop's TensorBoard writers and checkpoint saver (in the train phase).
+TRAIN_PARTS = ("bc_run", "chunk_compile", "compile_wait", "first_checkpoint", "calls", "median_call",
+               "checkpoint_excess", "other_excess", "loop_setup", "loop_close")
 FILE = "speed.json"
 
 

@@ -35,6 +35,9 @@ def test_call_parts_split_the_calls_excess_between_checkpoints_and_the_rest():
     parts = timing.call_parts([9.0, 1.0, 1.0, 3.0, 1.0, 2.5, 1.0], {3, 4})
     assert parts == {"calls": 6, "median_call": 1.0, "checkpoint_excess": 2.0, "other_excess": 1.5}
     assert timing.call_parts([9.0], {0})["calls"] == 0 and timing.call_parts([], set())["median_call"] == 0.0
+    # a checkpoint's call waited for, the next returning at once: the loop lost nothing (the CPU's pattern)
+    assert timing.call_parts([9.0, 1.0, 2.0, 0.0, 1.0, 2.0, 0.0], {2, 3, 5, 6})["checkpoint_excess"] == 0.0
+    assert timing.call_parts([9.0, 1.0, 2.0, 0.5, 1.0], {2, 3})["checkpoint_excess"] == 0.5
 
 
 def test_a_resumed_training_adds_up_and_an_evaluation_replaces():

@@ -28,7 +28,7 @@ class TrainConfig:
     validation: str | None = None  # validation demonstrations, for checkpoint selection (default: the task's own)
     num_demos: int = 0  # size of the generated default training set (0: the task's default split size)
     # our addition (0 = the paper): that many varied-human episodes of each of the robustness protocol's six
-    # variations added to the default training set (robustness.ensure_varied_training_set; README, "Robustness")
+    # variations added to the default training set (data.varied.ensure_varied_training_set; docs/evaluation.md)
     train_varied: int = 0
     mix: str = "uniform"  # strategy mixture of the default datasets (uniform, D1, D2)
     # the task's time limit in env steps, for training and evaluation (0: the task's own). Generated demonstrations
@@ -66,16 +66,16 @@ class TrainConfig:
     # our addition (off = the paper's state-independent std from init_log_std): after BC pre-training, each action
     # dimension's std is the RMS of the cloned mean's residual on the demonstrations (the maximum-likelihood std of
     # the cloned Gaussian), clipped to [0.01, exp(init_log_std)]: the co-policy explores as much as the
-    # demonstrators varied on each dimension (README, "HR-SeqManip")
+    # demonstrators varied on each dimension (docs/settings.md, "HR-SeqManip")
     bc_std: bool = False
     reward_norm: bool = True
     policy_cooldown: int = 0  # the run's last N updates: PPO trains the critic only, the co-policy moves by the
-    #   L_a / L_r steps alone (our addition, 0 = off; README, "HR-SeqManip")
+    #   L_a / L_r steps alone (our addition, 0 = off; docs/settings.md, "HR-SeqManip")
     # PPO+BC (our addition, 0 = off): every PPO minibatch adds bc_coef x the squared error of the co-policy's
     # mean on an expert minibatch, both agents acting on psi's code of the expert history (without L_a: on the
     # demonstration's code, losses.expert_code). Unlike lambda_a /
     # lambda_r, whose separate Adam step is scale-free per tower, this weight sets the balance against the
-    # discriminator's policy gradient inside one optimizer step (README, "HR-SeqManip")
+    # discriminator's policy gradient inside one optimizer step (docs/settings.md, "HR-SeqManip")
     bc_coef: float = 0.0
     # the delivered policy (our addition, 0 = off): an exponential moving average of the co-policy's and psi's
     # parameters, updated after every update with this decay; checkpoints keep it beside the trained parameters,

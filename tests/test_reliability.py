@@ -5,6 +5,7 @@ import random
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -259,7 +260,7 @@ def test_loader_rejects_garbage_bytes(blob, fetchq, tmp_path_factory):
 def test_background_saver_queues_in_order_and_reports_errors(tmp_path, monkeypatch):
     """Checkpoints submitted while training goes on are written in submission order, at most MAX_PENDING copies
     wait, and a failed write surfaces (at the next submit or at wait) instead of being lost."""
-    written, gate = [], __import__("threading").Event()
+    written, gate = [], threading.Event()
 
     def slow_save(mgr, step, state):
         gate.wait(5)
@@ -273,7 +274,6 @@ def test_background_saver_queues_in_order_and_reports_errors(tmp_path, monkeypat
     saver.submit(1, saver.copy(state))
     saver.submit(2, saver.copy({"x": state["x"] * 2}))
     assert len(saver._pending) == ckpt.BackgroundSaver.MAX_PENDING == 2 and not written  # queued, caller not blocked
-    threading = __import__("threading")
     threading.Timer(0.3, gate.set).start()
     t0 = time.perf_counter()
     saver.submit(4, saver.copy({"x": state["x"] * 4}))  # a third waits until the oldest is written

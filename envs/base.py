@@ -5,6 +5,11 @@ shared state ``s``. On top of brax's API a task exposes what the trainer, the de
 evaluation need:
 
 * ``human_action_size`` / ``robot_action_size`` -- the split of the action vector.
+* ``human_action_discrete`` / ``robot_action_discrete`` -- each agent's action space: False (default) a box in
+  [-1, 1]^size; True ``size`` discrete choices, given to ``step`` as a one-hot vector (the env acts on its argmax;
+  demonstration files store the one-hot vectors, and the co-policy has a categorical head for that agent).
+* ``score_metric`` (optional) -- the name of a ``State.metrics`` entry that counts what an episode achieved (e.g.
+  soups served); evaluation reports its mean beside the success rate.
 * ``max_episode_steps`` -- the time limit; ``step`` sets ``done`` on success, on failure or at the limit,
   and ``info["truncation"]`` (brax's convention) to 1.0 when the limit ended the episode without success or
   failure: a time-out is not a terminal state, and the trainer bootstraps it with the critic.
@@ -49,6 +54,9 @@ class CollabEnv(Env):
     name: str = ""
     human_action_size: int = 0
     robot_action_size: int = 0
+    human_action_discrete: bool = False
+    robot_action_discrete: bool = False
+    score_metric: str = ""
     max_episode_steps: int = 0
     init_size: int = 0
     strategy_names: Sequence[str] = ()

@@ -11,7 +11,8 @@ Where tasks come from, in the order :func:`get_task` looks:
 
 * tasks registered in this process with :func:`register_task` (a notebook, a test, a plugin's import);
 * the built-in tasks: every subpackage of ``cogail_envs`` that defines ``TASK`` (found by scanning the
-  package, so that nothing here names one);
+  package, so that nothing here names one), and the tasks of its ``VARIANTS`` (a tuple of more ``Task`` values,
+  e.g. the other kitchens of one game, each under its own name);
 * the ``cogail.tasks`` entry-point group of installed distributions (``name = "my_pkg.my_module:TASK"``);
 * a reference ``"my_pkg.my_module:attr"`` (or ``"path/to/file.py:attr"``), whose attribute is a ``Task``
   or a function returning one; the current directory is importable for it, as for ``python -m``.
@@ -94,7 +95,11 @@ class Task:
     rollouts (RUN/<task>_spots.png, the paper's Fig. 4a). ``cpu_steps_per_s``: env steps per second
     and core of a training update on a CPU, for the warning before a long CPU run (0: no warning). ``train_env``:
     env options (``env(**train_env)``) the training split's demonstrations are made with, e.g. a wider range of
-    starts; validation, test, the evaluation sets and the training rollouts use the plain env."""
+    starts; validation, test, the evaluation sets and the training rollouts use the plain env. ``recorded``: a task
+    whose datasets are people's recordings, not its team's: ``recorded(env, split) -> dict`` returns the split's
+    episodes (``obs``, ``actions_human``, ``actions_robot`` padded (N, T, .); ``length``, ``strategy``, ``init``,
+    ``final_metrics`` as the generator's; ``source``: attrs naming where they came from, e.g. the file and its
+    hash), and ``cogail data`` writes them as the split's file."""
 
     name: str
     env: Callable[..., Any]
@@ -110,6 +115,8 @@ class Task:
     cpu_steps_per_s: float = 0.0
     description: str = ""
     train_env: Mapping[str, Any] = field(default_factory=dict)
+    recorded: Callable[..., Mapping[str, Any]] | None = None
+
 
     def make_env(self, **kwargs):
         env = self.env(**kwargs)
@@ -166,9 +173,20 @@ def _entry_points() -> dict[str, Any]:
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
 
 
+def _builtin_tasks() -> dict[str, Task]:
+    """Every built-in task by name: each subpackage's ``TASK`` and its ``VARIANTS``."""
+    out = {}
+    for mod in _builtin_modules().values():
+        if (task := _module_task(mod)) is not None:
+            out[task.name] = task
+            for v in getattr(importlib.import_module(mod), "VARIANTS", ()):
+                out[v.name] = v
+    return out
+
+
 def builtin_task_names() -> tuple[str, ...]:
-    """The built-in tasks (the subpackages of ``cogail_envs`` that define ``TASK``), sorted."""
-    return tuple(sorted(n for n, mod in _builtin_modules().items() if _module_task(mod) is not None))
+    """The built-in tasks (the subpackages of ``cogail_envs`` that define ``TASK``, and their ``VARIANTS``), sorted."""
+    return tuple(sorted(_builtin_tasks()))
 
 
 def task_names() -> tuple[str, ...]:
@@ -236,6 +254,8 @@ def get_task(ref: str | Task) -> Task:
         return task
     builtin = _builtin_modules()
     if ref in builtin and (task := _module_task(builtin[ref])) is not None:
+        return task
+    if (task := _builtin_tasks().get(ref)) is not None:
         return task
     eps = _entry_points()
     if ref in eps:

@@ -13,8 +13,10 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from . import actions
+from .actions import ActionSpec
 from .config import METHODS, TrainConfig, hyper_values
-from .networks import gaussian_entropy, gaussian_log_prob
+from .networks import gaussian_entropy, gaussian_log_prob  # noqa: F401  (the Gaussian case, used by tests)
 
 
 def gae(rewards, values, dones, truncations, final_values, last_value, gamma, lam, unroll=1):
@@ -47,11 +49,13 @@ def gae(rewards, values, dones, truncations, final_values, last_value, gamma, la
 LOG_RATIO_MAX = 20.0
 
 
-def ppo_loss(actor_apply, critic_apply, params, batch, clip_eps, value_coef, entropy_coef, normalize_adv=True):
+def ppo_loss(actor_apply, critic_apply, params, batch, clip_eps, value_coef, entropy_coef, normalize_adv=True,
+             spec: ActionSpec | None = None):
     """Clipped PPO; ``normalize_adv=False``: the batch's advantages come normalised (over every env shard's
-    minibatch: ``shards.moments``)."""
+    minibatch: ``shards.moments``). ``spec``: the action's kinds (default: all continuous)."""
+    spec = spec or ActionSpec(0, 0)
     mean, log_std = actor_apply(params["actor"], batch["obs"], batch["z"])
-    logp = gaussian_log_prob(mean, log_std, batch["action"])
+    logp = actions.log_prob(spec, mean, log_std, batch["action"])
     log_ratio = jnp.clip(logp - batch["logp"], -LOG_RATIO_MAX, LOG_RATIO_MAX)
     ratio = jnp.exp(log_ratio)
     adv = batch["adv"]
@@ -60,7 +64,7 @@ def ppo_loss(actor_apply, critic_apply, params, batch, clip_eps, value_coef, ent
     pg = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - clip_eps, 1 + clip_eps) * adv).mean()
     value = critic_apply(params["critic"], batch["obs"], batch["z"])
     v_loss = 0.5 * ((value - batch["ret"]) ** 2).mean()
-    ent = gaussian_entropy(log_std).mean()
+    ent = actions.entropy(spec, mean, log_std).mean()
     total = pg + value_coef * v_loss - entropy_coef * ent
     kl = ((ratio - 1) - log_ratio).mean()
     return total, {"policy_loss": pg, "value_loss": v_loss, "entropy": ent, "approx_kl": kl}
@@ -83,11 +87,15 @@ def discriminator_loss(disc_apply, params, expert, policy, kind, gp_coef, rng):
     return loss + gp_coef * gp, {"disc_loss": loss, "disc_gp": gp, "disc_acc_expert": acc_e, "disc_acc_policy": acc_p}
 
 
-def noisy_expert_actions(actions, log_std, key):
+def noisy_expert_actions(a, log_std, key, spec: ActionSpec | None = None):
     """Instance noise for the discriminator: the expert's actions with the policy's Gaussian action noise
-    (``log_std``, no gradient) and the same clip to [-1, 1] as the actions the policy executes."""
+    (``log_std``, no gradient) and the same clip to [-1, 1] as the actions the policy executes. A discrete agent's
+    one-hot actions are left as they are (its executed actions are one-hot too)."""
     std = jnp.exp(jax.lax.stop_gradient(log_std))
-    return jnp.clip(actions + std * jax.random.normal(key, actions.shape), -1.0, 1.0)
+    noisy = jnp.clip(a + std * jax.random.normal(key, a.shape), -1.0, 1.0)
+    if spec is None or spec.continuous:
+        return noisy
+    return jnp.concatenate([a[..., s:s + n] if d else noisy[..., s:s + n] for s, n, d in spec.segments], -1)
 
 
 def discriminator_reward(d, kind):
@@ -95,33 +103,37 @@ def discriminator_reward(d, kind):
     return d
 
 
-def code_loss(psi_apply, actor_apply, params, batch, human_size, train="both"):
+def code_loss(psi_apply, actor_apply, params, batch, human_size, train="both", discrete=False):
     """L_z on generated data: psi(s_{t-K..t}, mu_H(s_{t-1}, z)) should recover z; the human action in the
     history is the policy mean, so the gradient reaches the co-policy. ``train``: "both", "psi" (the
     co-policy held fixed: psi's part, in the aux step) or "policy" (psi held fixed: the co-policy's part, in
-    the PPO step; ``lz_in_ppo``)."""
+    the PPO step; ``lz_in_ppo``). ``discrete``: the human's actions are discrete, and the history holds its
+    expected one-hot action (the categorical's probabilities) instead of a mean."""
     sg = jax.lax.stop_gradient
     params = {**params, "actor": sg(params["actor"]) if train == "psi" else params["actor"],
               "psi": sg(params["psi"]) if train == "policy" else params["psi"]}
     mean_prev, _ = actor_apply(params["actor"], batch["prev_obs"], batch["z"])
-    a_prev = jnp.where(batch["first"][:, None], 0.0, mean_prev[:, :human_size])
+    a_prev = jnp.where(batch["first"][:, None], 0.0, actions.agent_expected(discrete, mean_prev[:, :human_size]))
     h = jnp.concatenate([batch["hist"], a_prev], -1)
     z_hat = psi_apply(params["psi"], h)
     return jnp.mean(jnp.sum((z_hat - batch["z"]) ** 2, -1))
 
 
-def behaviour_loss(psi_apply, actor_apply, params, batch, human_size, psi_grad=True, z=None):
+def behaviour_loss(psi_apply, actor_apply, params, batch, human_size, psi_grad=True, z=None,
+                   spec: ActionSpec | None = None):
     """L_a on expert data: the human part of the co-policy, fed psi's code of the expert history, should
     reproduce the expert human action. Also returns the same error for the robot part (L_r, our addition:
     the robot acting with psi's code on expert histories, weighted by ``lambda_r``). ``psi_grad=False``: psi's
     code enters through stop_gradient (presets without L_a: psi learns nothing from expert actions). ``z``:
-    the code to act on instead of psi's (``expert_code``)."""
+    the code to act on instead of psi's (``expert_code``). A discrete agent's error is the cross-entropy of its
+    expert choices (``actions.agent_error``): L_a / L_r are then negative log-likelihoods."""
+    spec = spec or ActionSpec(human_size, 0)
     z_hat = psi_apply(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1)) if z is None else z
     if not psi_grad:
         z_hat = jax.lax.stop_gradient(z_hat)
     mean, _ = actor_apply(params["actor"], batch["obs"], z_hat)
-    la = jnp.mean(jnp.sum((mean[:, :human_size] - batch["ah"]) ** 2, -1))
-    lr = jnp.mean(jnp.sum((mean[:, human_size:] - batch["ar"]) ** 2, -1))
+    la = jnp.mean(actions.agent_error(spec.human_discrete, mean[:, :human_size], batch["ah"]))
+    lr = jnp.mean(actions.agent_error(spec.robot_discrete, mean[:, human_size:], batch["ar"]))
     return la, lr
 
 
@@ -131,22 +143,25 @@ def code_spread(z):
     return jnp.sum(jnp.mean(z, 0) ** 2) + jnp.sum((jnp.var(z, 0) - 1.0 / 3.0) ** 2)
 
 
-def bc_loss(psi_apply, actor_apply, params, batch, use_code, target="both", train_psi=True):
+def bc_loss(psi_apply, actor_apply, params, batch, use_code, target="both", train_psi=True,
+            spec: ActionSpec | None = None):
     """Behaviour cloning of the agents' actions (``target``: "both", "human" or "robot").
 
     Each demonstration has a learned code (``params["codes"]``, tanh-squashed) that the co-policy acts on for the
     whole demonstration, and the codes' moments are pulled to the prior's (U(-1, 1)^2) so that the prior's codes
     are in distribution; with ``train_psi``, psi also regresses the demonstration's code from the history.
-    Without ``use_code`` the co-policy acts on z = 0.
+    Without ``use_code`` the co-policy acts on z = 0. The error is squared for a continuous agent and the
+    cross-entropy for a discrete one (``actions``).
     """
     width = batch["ah"].shape[-1]
+    spec = spec or ActionSpec(width, batch["ar"].shape[-1])
     if target == "both":
-        target, pick = jnp.concatenate([batch["ah"], batch["ar"]], -1), lambda m: m
+        joint = jnp.concatenate([batch["ah"], batch["ar"]], -1)
+        err = lambda mean: jnp.mean(actions.joint_error(spec, mean, joint))  # noqa: E731
     elif target == "human":
-        target, pick = batch["ah"], lambda m: m[..., :width]
+        err = lambda mean: jnp.mean(actions.agent_error(spec.human_discrete, mean[..., :width], batch["ah"]))  # noqa: E731
     else:
-        target, pick = batch["ar"], lambda m: m[..., width:]
-    err = lambda mean: jnp.mean(jnp.sum((pick(mean) - target) ** 2, -1))  # noqa: E731
+        err = lambda mean: jnp.mean(actions.agent_error(spec.robot_discrete, mean[..., width:], batch["ar"]))  # noqa: E731
     z_psi = psi_apply(params["psi"], jnp.concatenate([batch["hist"], batch["prev_ah"]], -1))
     if not use_code:  # the co-policy acts on z = 0
         mean, _ = actor_apply(params["actor"], batch["obs"], jnp.zeros_like(z_psi))
@@ -193,6 +208,7 @@ class Nets(NamedTuple):
     disc: Callable
     human_size: int
     disc_kind: str  # "bce" | "lsgan"
+    spec: ActionSpec | None = None  # the action's kinds (None: every agent continuous)
 
 
 TERMS = ("gail_human", "gail_robot", "L_z", "L_a", "L_r", "diversity", "ppo_bc", "bc_human", "bc_robot", "bc_psi")
@@ -231,6 +247,10 @@ def objective_terms(cfg: TrainConfig) -> frozenset[str]:
     if cfg.bc_steps > 0:
         t |= {"bc_human", "bc_robot"} | ({"bc_psi"} if cfg.use_la else set())
     return frozenset(t)
+
+
+def _human_discrete(nets: Nets) -> bool:
+    return bool(nets.spec is not None and nets.spec.human_discrete)
 
 
 def _code_net(cfg: TrainConfig, nets: Nets):
@@ -282,17 +302,18 @@ def aux_objective(cfg: TrainConfig, nets: Nets, params, gen_batch, exp_batch, hp
     if gen_batch is not None:
         if "L_z" in on:
             terms["loss_z"] = (hp["lambda_z"], code_loss(nets.psi, nets.actor, params, gen_batch, nets.human_size,
-                                                       train="psi" if lz_in_ppo(cfg) else "both"))
+                                                       train="psi" if lz_in_ppo(cfg) else "both",
+                                                       discrete=_human_discrete(nets)))
         if "diversity" in on:
             h = jnp.concatenate([gen_batch["hist"], gen_batch["prev_ah"]], -1)
             terms["loss_q"] = (1.0, diversity_q_loss(nets.psi, params, h, gen_batch["z"]))
     if exp_batch is not None and on & {"L_a", "L_r"}:
         la, lr = behaviour_loss(_code_net(cfg, nets), nets.actor, params, exp_batch, nets.human_size,
-                                psi_grad="L_a" in on, z=expert_code(cfg, params, exp_batch))
+                                psi_grad="L_a" in on, z=expert_code(cfg, params, exp_batch), spec=nets.spec)
         if "L_a" in on:
             # one learned code per demonstration, psi regressing it (the paper's L_a, on psi's code of each step's
             # history, interpolated 3 % against 48 % on fetchq: docs/notes.md)
-            la = bc_loss(nets.psi, nets.actor, params, exp_batch, True, target="human")
+            la = bc_loss(nets.psi, nets.actor, params, exp_batch, True, target="human", spec=nets.spec)
             terms["loss_a"] = (cfg.lambda_a, la)
         if "L_r" in on:
             terms["loss_r"] = (cfg.lambda_r, lr)
@@ -308,13 +329,14 @@ def ppo_objective(cfg: TrainConfig, nets: Nets, params, batch, exp_batch, hp: di
     lambda_z L_z together). ``hp``: the ``config.HYPER`` values (default: ``cfg``'s)."""
     hp = hyper_values(cfg) if hp is None else hp
     total, m = ppo_loss(nets.actor, nets.critic, params, batch, hp["clip_eps"], hp["value_coef"], hp["entropy_coef"],
-                        normalize_adv=cfg.env_shards == 1)
+                        normalize_adv=cfg.env_shards == 1, spec=nets.spec)
     if "ppo_bc" in objective_terms(cfg):
         la, lr = behaviour_loss(_code_net(cfg, nets), nets.actor, params, exp_batch, nets.human_size,
-                                psi_grad=False, z=expert_code(cfg, params, exp_batch))
+                                psi_grad=False, z=expert_code(cfg, params, exp_batch), spec=nets.spec)
         total, m = total + hp["bc_coef"] * (la + lr), {**m, "ppo_bc": la + lr}
     if lz_in_ppo(cfg):
-        lz = code_loss(nets.psi, nets.actor, params, batch, nets.human_size, train="policy")
+        lz = code_loss(nets.psi, nets.actor, params, batch, nets.human_size, train="policy",
+                       discrete=_human_discrete(nets))
         total, m = total + hp["lambda_z"] * lz, {**m, "ppo_lz": lz}
     return total, m
 
@@ -325,7 +347,7 @@ def bc_objective(cfg: TrainConfig, nets: Nets, params, batch):
     (BC-single)."""
     on = objective_terms(cfg)
     target = "both" if "bc_human" in on else "robot"
-    return bc_loss(nets.psi, nets.actor, params, batch, cfg.use_code, target, train_psi="bc_psi" in on)
+    return bc_loss(nets.psi, nets.actor, params, batch, cfg.use_code, target, train_psi="bc_psi" in on, spec=nets.spec)
 
 
 PAPER_WORDING = {  # the paper's section 5 ("Baselines"), one line each

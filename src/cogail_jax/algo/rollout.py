@@ -12,9 +12,9 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from . import shards
+from . import actions, shards
 from .config import TrainConfig
-from .networks import gaussian_log_prob, normalize
+from .networks import normalize
 
 
 class Carry(NamedTuple):
@@ -70,6 +70,7 @@ def rollout(cfg: TrainConfig, env, actor, critic, params, norm, carry: Carry, ke
     of E takes the cycle's cells i, i + E, i + 2E, ... from the counter on, and the returned counter is advanced by
     every shard's new episodes (``shards.total``), the same on every shard."""
     n, k, ah, e = shards.local_envs(cfg), cfg.history, env.human_action_size, shards.count(cfg)
+    spec = actions.spec_of(env)
     counter0 = carry.code_counter
     if e > 1:
         carry = carry._replace(code_counter=counter0 + shards.index(cfg))
@@ -85,14 +86,13 @@ def rollout(cfg: TrainConfig, env, actor, critic, params, norm, carry: Carry, ke
         obs_n = normalize(norm, c.env_state.obs)
         mean, log_std = actor(params["actor"], obs_n, c.z)
         value = critic(params["critic"], obs_n, c.z)
-        a = mean + jnp.exp(log_std) * jax.random.normal(k_act, mean.shape)
-        act = jnp.clip(a, -1.0, 1.0)
+        a, act = actions.sample(spec, mean, log_std, k_act)
         nxt = jax.vmap(env.step)(c.env_state, act)
         done = nxt.done > 0
         zero = jnp.zeros(done.shape)
         tr = {"obs": c.env_state.obs, "z": c.z, "hist": c.hist, "prev_ah": c.prev_ah,
               "first": c.env_state.info["t"] == 0, "action": a, "act": act,
-              "logp": gaussian_log_prob(mean, log_std, a), "value": value, "done": done.astype(jnp.float32),
+              "logp": actions.log_prob(spec, mean, log_std, a), "value": value, "done": done.astype(jnp.float32),
               "truncation": nxt.info.get("truncation", zero) * done, "next_obs": nxt.obs,
               "success": nxt.metrics["success"] * done, "env_failed": nxt.info.get("failed", zero)}
         z_new, counter = new_codes(cfg, c.code_counter, done, k_code, stride=e)

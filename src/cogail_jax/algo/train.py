@@ -24,9 +24,9 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from . import losses, shards
+from . import actions, losses, shards
 from .config import HYPER, TrainConfig, chunk_key, hyper_values, program_key
-from .networks import disc_kind, gaussian_log_prob, history_input, make_networks, normalize
+from .networks import disc_kind, history_input, make_networks, normalize
 from ..runtime.parallel import SeedChunk
 from ..runtime.programs import stored
 from .rollout import Carry, code_grid, initial_carry, rollout
@@ -78,7 +78,7 @@ def make_context(cfg: TrainConfig, env, hp: dict | None = None) -> Context:
     hp = hyper_values(cfg) if hp is None else hp
     modules = make_networks(cfg, env)
     nets = losses.Nets(*(modules[k].apply for k in ("actor", "critic", "psi", "disc")), env.human_action_size,
-                       disc_kind(cfg, env))
+                       disc_kind(cfg, env), actions.spec_of(env))
     return Context(cfg, env, modules, nets, *make_optimizers(cfg, hp), hp)
 
 
@@ -228,6 +228,9 @@ def with_bc_std(ctx: Context, params: dict, batch: dict) -> dict:
     rms = jnp.sqrt(jnp.mean(res ** 2, 0))
     log_std = jnp.clip(jnp.log(jnp.maximum(rms, 1e-12)), jnp.log(BC_STD_MIN), ctx.cfg.init_log_std)
     actor = params["actor"]
+    if not ctx.nets.spec.continuous:  # a discrete agent has no std: its entries stay as they were (unread)
+        keep = jnp.concatenate([jnp.full((n,), d) for _, n, d in ctx.nets.spec.segments])
+        log_std = jnp.where(keep, actor["params"]["log_std"], log_std)
     return {**params, "actor": {**actor, "params": {**actor["params"], "log_std": log_std}}}
 
 
@@ -272,7 +275,8 @@ def disc_step(ctx: Context, params, disc_opt, gen_b, exp_b, key):
     cfg, nets = ctx.cfg, ctx.nets
     a_e = jnp.concatenate([exp_b["ah"], exp_b["ar"]], -1)
     if cfg.disc_instance_noise:
-        a_e = losses.noisy_expert_actions(a_e, params["actor"]["params"]["log_std"], jax.random.fold_in(key, 1))
+        a_e = losses.noisy_expert_actions(a_e, params["actor"]["params"]["log_std"], jax.random.fold_in(key, 1),
+                                          nets.spec)
     x_e = jnp.concatenate([exp_b["obs"], a_e], -1)
     x_p = jnp.concatenate([gen_b["obs"], gen_b["act"]], -1)
     (_, m), g = jax.value_and_grad(
@@ -375,7 +379,7 @@ def ppo_update(ctx: Context, state: TrainState, traj, adv, ret, key, expert):
     z, action = traj["z"].reshape(n, -1), traj["action"].reshape(n, -1)
     # log-probs under the co-policy as the inner (L_z / L_a) updates left it: the PPO ratio starts at 1
     mean, log_std = nets.actor(state.params["actor"], obs_n, z)
-    logp_old = jax.lax.stop_gradient(gaussian_log_prob(mean, log_std, action))
+    logp_old = jax.lax.stop_gradient(actions.log_prob(nets.spec, mean, log_std, action))
     flat = {"obs": obs_n, "z": z, "action": action, "logp": logp_old, "adv": adv.reshape(n), "ret": ret.reshape(n)}
     if losses.lz_in_ppo(cfg):  # L_z's co-policy part, on the rollout's own steps
         hist = traj["hist"].reshape((n,) + traj["hist"].shape[2:])

@@ -8,6 +8,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..algo import actions
+
 
 def _rollout_states(env, policy, init_states, T):
     """Scan a batched policy ``policy(state, t, key) -> action`` from ``init_states``; stack the states."""
@@ -63,7 +65,7 @@ def _run_rollouts(run: Path, num: int, steps: int | None):
 
     def policy(st, t, key):
         mean, _ = actor(params["actor"], (st.obs - norm["mean"]) / norm["std"], z)
-        return jnp.clip(mean, -1, 1)
+        return actions.mode(actions.spec_of(env), mean)
 
     states0 = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(7), num))
     interp = jax.jit(lambda s0: _rollout_states(env, policy, s0, T))(states0)

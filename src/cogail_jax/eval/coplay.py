@@ -35,6 +35,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..algo import actions
+
 COPLAY_SEED = 2468  # episode i's key: fold_in(PRNGKey(COPLAY_SEED), i)
 ROBOT_SALT = 4_242  # the scripted robot's own team-state key: fold_in(episode key, ROBOT_SALT)
 PROXY_SEED = 0  # the proxy's initial parameters
@@ -104,18 +106,24 @@ def proxy_inputs(hist: jax.Array) -> jax.Array:
     return jnp.concatenate([obs, *(obs - hist[..., -1 - k, :] for k in PROXY_LAGS)], -1)
 
 
-def proxy_action(proxy: Proxy, hist: jax.Array) -> jax.Array:
-    """The proxy's human action after the observations ``hist`` (see :func:`proxy_inputs`; clipped to [-1, 1])."""
+def proxy_action(proxy: Proxy, hist: jax.Array, discrete: bool = False, key: jax.Array | None = None) -> jax.Array:
+    """The proxy's human action after the observations ``hist`` (see :func:`proxy_inputs`; clipped to [-1, 1]).
+    ``discrete``: the human's actions are discrete choices, and the proxy's outputs their logits: its action is a
+    choice drawn from them with ``key`` (one-hot), as the field's behaviour-cloned humans act (Carroll et al. 2019: a
+    deterministic clone of a person gets stuck where people do not)."""
+    if discrete:
+        logits = _mlp(proxy, proxy_inputs(hist), squash=False)
+        return jax.nn.one_hot(jax.random.categorical(key, logits), logits.shape[-1], dtype=jnp.float32)
     return _mlp(proxy, proxy_inputs(hist))
 
 
-def _mlp(proxy: Proxy, inputs: jax.Array) -> jax.Array:
+def _mlp(proxy: Proxy, inputs: jax.Array, squash: bool = True) -> jax.Array:
     x = (inputs - proxy.mean) / proxy.std
     for i, (w, b) in enumerate(proxy.layers):
         x = x @ w + b
         if i < len(proxy.layers) - 1:
             x = jnp.tanh(x)
-    return jnp.clip(x, -1.0, 1.0)
+    return jnp.clip(x, -1.0, 1.0) if squash else x
 
 
 def data_digest(obs, ah, length) -> str:
@@ -137,12 +145,14 @@ def _init_layers(key, sizes):
 
 
 def train_proxy(demos: dict, split: str, steps: int = 2000, seed: int = PROXY_SEED,
-                hidden: tuple = PROXY_HIDDEN, file: str | None = None) -> tuple[Proxy, dict]:
+                hidden: tuple = PROXY_HIDDEN, file: str | None = None, discrete: bool = False) -> tuple[Proxy, dict]:
     """Behaviour-clone the human of the TEST split: an MLP (:func:`proxy_inputs`) -> a_H (mean squared error on every valid step,
     full batch Adam, ``steps`` updates in one jitted ``lax.scan``, initial parameters from ``PRNGKey(seed)``; so
     the same data give the same proxy). ``demos``: the split as the evaluation loads it
     (``rollouts.heldout_arrays``: ``obs``, ``ah``, ``length``); ``split``: its name, which must be ``test`` (the
-    proxy stands for people the robot has not seen: neither the training nor the validation humans).
+    proxy stands for people the robot has not seen: neither the training nor the validation humans). ``discrete``:
+    the human's actions are one-hot choices, and the proxy is fitted by cross-entropy instead (its outputs are
+    logits; :func:`proxy_action`).
 
     Returns the proxy and its record: ``split``, ``file``, ``episodes``, ``samples``, ``digest``
     (:func:`data_digest` of the data), ``steps``, ``hidden``, ``loss`` (final training loss) and ``loss_curve``
@@ -170,6 +180,9 @@ def train_proxy(demos: dict, split: str, steps: int = 2000, seed: int = PROXY_SE
     @jax.jit
     def fit(layers, x, y):
         def loss_fn(layers):
+            if discrete:
+                logits = _mlp(Proxy(layers, mean, std), x, squash=False)
+                return -jnp.mean(jnp.sum(y * jax.nn.log_softmax(logits, -1), -1))
             return jnp.mean((_mlp(Proxy(layers, mean, std), x) - y) ** 2)
 
         def body(carry, _):
@@ -185,7 +198,10 @@ def train_proxy(demos: dict, split: str, steps: int = 2000, seed: int = PROXY_SE
     losses = np.asarray(losses)
     info = {"split": split, "file": None if file is None else str(file), "episodes": int(len(length)),
             "samples": int(len(x)), "digest": data_digest(obs, ah, length), "steps": int(steps),
-            "hidden": list(hidden), "loss": float(final),
+            "hidden": list(hidden), "loss": float(final), "kind": "categorical" if discrete else "mean",
+            "accuracy": float(np.mean(np.argmax(np.asarray(_mlp(Proxy(layers, jnp.asarray(mean), jnp.asarray(std)),
+                                                                     jnp.asarray(x), squash=False)), -1)
+                                      == np.argmax(y, -1))) if discrete else None,
             "loss_curve": [float(losses[min(int(round(i * (steps - 1) / 10)), steps - 1)]) for i in range(11)]}
     return Proxy(layers, jnp.asarray(mean), jnp.asarray(std)), info
 
@@ -249,6 +265,7 @@ def make_coplay_fn(env, cfg=None, nets=None):
     human_act = team.human_act if team is not None else None
     robot_act = team.robot_act if team is not None else None
     Ah, T = env.human_action_size, env.max_episode_steps
+    spec = actions.spec_of(env)
     learned = cfg is not None and nets is not None
     if learned:
         from .rollouts import make_robot_step
@@ -276,12 +293,13 @@ def make_coplay_fn(env, cfg=None, nets=None):
         if human_act is not None:
             ts_h, a_h = human_act(env, ts_h, state, k_h)
         if proxy is not None:
-            a_h = jnp.where(ep["proxy"], proxy_action(proxy, hist), a_h)
+            a_h = jnp.where(ep["proxy"], proxy_action(proxy, hist, spec.human_discrete, jax.random.fold_in(k_h, 1)),
+                            a_h)
         a_r = jnp.zeros((env.robot_action_size,), jnp.float32)
         if learned:
             z = psi_code(params, norm, hist[-(K + 1):], prev_ah)
             mean, _ = actor(params["actor"], (state.obs - norm["mean"]) / norm["std"], z)
-            a_r = jnp.clip(mean[Ah:], -1, 1)
+            a_r = actions.agent_mode(spec.robot_discrete, mean[Ah:])
         if robot_act is not None:
             ts_r, a_s = robot_act(env, ts_r, state, k_r)
             a_r = jnp.where(ep["scripted_robot"], a_s, a_r)
@@ -313,6 +331,8 @@ def make_coplay_fn(env, cfg=None, nets=None):
         (state, _, _, _, _, _), _ = jax.lax.scan(body, carry, None, length=T)
         m = state.metrics
         out = {"success": m["success"], "strategy": jax.vmap(env.classify_strategy)(m), "length": state.info["t"]}
+        if env.score_metric:
+            out["score"] = m[env.score_metric]
         return jax.tree.map(unflat, out)
 
     if learned:  # its trace kept between runs (``programs.stored``): the config fixes env, networks and team
@@ -378,7 +398,8 @@ def prepare(s, episodes: int | None = None, proxy_steps: int | None = None) -> P
                           "test split (need_heldout=True)")
     episodes = int(episodes or default_episodes())
     proxy_steps = int(proxy_steps or (500 if jax.default_backend() == "cpu" else 4000))
-    proxy, proxy_info = train_proxy(s.heldout, TEST_SPLIT, steps=proxy_steps, file=(s.files or {}).get("test"))
+    proxy, proxy_info = train_proxy(s.heldout, TEST_SPLIT, steps=proxy_steps, file=(s.files or {}).get("test"),
+                                    discrete=actions.spec_of(env).human_discrete)
     names, scripted = partners(env), has_scripted_robot(env)
     batch = episode_batch(env, names, episodes, ("learned", "scripted") if scripted else ("learned",))
     return Prepared(proxy, proxy_info, names, scripted, episodes, batch, make_coplay_fn(env, cfg, s.nets))
@@ -402,6 +423,9 @@ def evaluate(s, checkpoints: dict[str, tuple[int, dict]], episodes: int | None =
                                                                         batch)))
         out = done[step]
         learned[key] = {"checkpoint": int(step), "success": _per_partner(out["success"], batch, "learned", cfg.seeds)}
+        if "score" in out:  # the task's score (e.g. soups served) per episode, beside the success rate
+            learned[key]["score"] = _per_partner(out["score"], batch, "learned", cfg.seeds)
+            learned[key]["score_name"] = s.env.score_metric
         if p.scripted and ref is None:  # each copy played other episodes: the mean over all of them
             copies = out["success"].shape[0]
             ref = {k: v["mean"] for k, v in _per_partner(out["success"], batch, "scripted", range(copies)).items()}
@@ -438,6 +462,18 @@ def markdown(c: dict) -> list[str]:
             v = c["scripted_robot"].get(name)
             row.append("-" if v is None else f"{100 * v:.1f}")
         lines.append("| " + " | ".join(row) + " |")
+    scored = [k for k in keys if "score" in c["learned"][k]]
+    if scored:
+        name = c["learned"][scored[0]].get("score_name", "score")
+        lines += ["", f"Co-play {name} per episode (mean +- std over seeds):", "",
+                  "| partner | " + " | ".join(f"learned robot, {k.replace('_', ' ')} checkpoint" for k in scored) + " |",
+                  "|" + " --- |" * (len(scored) + 1)]
+        for partner in c["partners"]:
+            row = [partner]
+            for k in scored:
+                e = c["learned"][k]["score"].get(partner)
+                row.append("-" if e is None else f"{e['mean']:.2f} +- {e['std']:.2f}")
+            lines.append("| " + " | ".join(row) + " |")
     p = c["proxy"]
     extra = (f"; with the scripted robot it succeeds in {100 * p['success_with_scripted_robot']:.1f} %"
              if p.get("success_with_scripted_robot") is not None else "")

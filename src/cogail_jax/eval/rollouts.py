@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..algo import actions
 from ..algo.config import TrainConfig, program_key
 from ..runtime.programs import stored
 
@@ -66,7 +67,7 @@ def make_robot_step(cfg: TrainConfig, env, nets):
       step with the human's action ``a_h`` given and the robot's action from pi_R(s, psi(h)).
     """
     actor, psi = nets["actor"].apply, nets["psi"].apply
-    Ah = env.human_action_size
+    Ah, spec = env.human_action_size, actions.spec_of(env)
 
     def normalize(norm, x):
         return (x - norm["mean"]) / norm["std"]
@@ -79,7 +80,7 @@ def make_robot_step(cfg: TrainConfig, env, nets):
     def robot_step(params, norm, state, hist, prev_ah, a_h):
         z = psi_code(params, norm, hist, prev_ah)
         mean, _ = actor(params["actor"], normalize(norm, state.obs), z)
-        a_r = jnp.clip(mean[Ah:], -1, 1)
+        a_r = actions.agent_mode(spec.robot_discrete, mean[Ah:])
         nxt = env.step(state, jnp.concatenate([a_h, a_r]))
         return nxt, jnp.concatenate([hist[1:], nxt.obs[None]], 0), z, a_r
 
@@ -111,6 +112,7 @@ def _episodes_fn(cfg: TrainConfig, env, nets):
     compiled) once, under one vmap."""
     actor = nets["actor"].apply
     Ah, Tenv, margin = env.human_action_size, env.max_episode_steps, replay_margin(env)
+    spec = actions.spec_of(env)
     psi_code, _ = make_robot_step(cfg, env, nets)
 
     def act(params, norm, state, hist, prev_ah, ep, p):
@@ -118,7 +120,7 @@ def _episodes_fn(cfg: TrainConfig, env, nets):
         z = jnp.where(ep["replay"], psi_code(params, norm, hist, prev_ah),
                       ep["code"] if cfg.use_code else jnp.zeros_like(ep["code"]))
         mean, _ = actor(params["actor"], (state.obs - norm["mean"]) / norm["std"], z)
-        a = jnp.clip(mean, -1, 1)
+        a = actions.mode(spec, mean)
         recorded = jnp.where(p < ep["length"], ep["ah"][jnp.minimum(p, ep["ah"].shape[0] - 1)], 0.0)
         wait, a_wait = env.replay_hold(state, recorded)
         wait = wait & ep["patient"] & ep["replay"]

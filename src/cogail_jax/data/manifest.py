@@ -74,7 +74,13 @@ def _write(run_dir, man: dict) -> None:
 
 
 def entry(path: str | os.PathLike, env_version: str | None = None) -> dict:
-    return {"path": str(path), "env_version": _stored_version(path) or env_version, "content_hash": content_hash(path)}
+    """A set's record: its path, task version and content hash, and for people's recordings where they came from
+    (the file's ``source_*`` attrs: the source file and its sha256)."""
+    from .recorded import source_attrs
+
+    out = {"path": str(path), "env_version": _stored_version(path) or env_version, "content_hash": content_hash(path)}
+    source = source_attrs(Path(path))
+    return {**out, "source": {k[len("source_"):]: v for k, v in source.items()}} if source else out
 
 
 def check(run_dir: str | os.PathLike, sets: dict[str, str | os.PathLike], env_version: str | None = None) -> None:

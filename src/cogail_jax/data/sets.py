@@ -19,7 +19,7 @@ from pathlib import Path
 from cogail_envs import get_task
 from cogail_envs.variations import HELD_OUT
 
-from . import io, varied
+from . import io, recorded, varied
 
 TRAIN, VALIDATION, TEST = "train", "validation", "test"
 
@@ -42,6 +42,9 @@ def split_path(cfg, split: str, make: bool = False, env=None, verbose: bool = Tr
             raise io.DatasetError(f"demonstration file {own} ({split}) does not exist: check the path, or make one "
                                   "with `cogail demos` or `cogail import`")
         return Path(own)
+    task = get_task(cfg.task)
+    if not _generated(cfg) and task.recorded is not None:  # people's recordings, written as the split's file
+        return recorded.ensure(env or _task_env(cfg), task, split, make=make, verbose=verbose)
     if not _generated(cfg):
         flag = {TRAIN: "--demos", VALIDATION: "--validation", TEST: "--heldout"}[split]
         raise io.DatasetError(f"task {get_task(cfg.task).name} has no scripted team to make its {split} split: give "
@@ -76,7 +79,7 @@ def robustness_paths(cfg, make: bool = False, env=None, verbose: bool = True) ->
 
 def run_sets(cfg, robustness: bool = True, make: bool = False, verbose: bool = True) -> dict[str, Path]:
     """Every set ``cfg``'s run trains and is evaluated on, by name (see the module docstring)."""
-    env = _task_env(cfg) if (make or _generated(cfg)) else None
+    env = _task_env(cfg) if (make or _generated(cfg) or get_task(cfg.task).recorded) else None
     out = {split: split_path(cfg, split, make, env, verbose) for split in (TRAIN, VALIDATION, TEST)}
     if robustness:
         out.update(robustness_paths(cfg, make, env, verbose))

@@ -13,16 +13,19 @@ EXTRA ?=
 .PHONY: install browser train eval test demos video bench first-run clean help paper paper-check paper-compare
 
 help:
-	@echo "make train [TASK=fetchq|handover|seqmanip|module:TASK] [METHOD=cogail|ma_infogail|ma_gail|bc_gail|bc_single|diayn]"
+	@echo "make train [TASK=fetchq|handover|seqmanip|overcooked|overcooked_KITCHEN|module:TASK] [METHOD=cogail|ma_infogail|ma_gail|bc_gail|bc_single|diayn]"
 	@echo "           [SEEDS=300,400,500] [BUDGET=paper|quick|2x] [RUN=dir] [EXTRA='--set FIELD=VALUE ...']"
 	@echo "make eval RUN=dir | make test | make demos TASK=... (the run's datasets) | make video RUN=dir | make bench"
 	@echo "make first-run [TASKS=fetchq] (cold, warm and new-config make train, timed; TASKS=fetchq,handover,seqmanip)"
 	@echo "make paper [TASKS=fetchq] [METHODS=...] [MIXES=uniform,D1,D2] [GPUS=all] [JOBS_PER_GPU=1] [SHARD=i/n]"
 	@echo "make paper-check | make paper-compare | make install [CPU=1] [DRY_RUN=1] | make clean (deletes runs/)"
 
+# overcooked-ai 1.1.0 only for the Overcooked trials it ships (Carroll et al. 2019), without the GUI and notebook
+# packages it declares (gym, pygame, ipython, ipywidgets): the task reads its data files, never imports it.
 $(BIN)/.installed: pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q -e '.[test]'
+	$(BIN)/python -m pip install -q --no-deps overcooked-ai==1.1.0
 	touch $@
 
 # The project, then the JAX build for this machine (tools/install_jax.py: the CUDA build matching the driver

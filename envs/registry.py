@@ -99,7 +99,9 @@ class Task:
     whose datasets are people's recordings, not its team's: ``recorded(env, split) -> dict`` returns the split's
     episodes (``obs``, ``actions_human``, ``actions_robot`` padded (N, T, .); ``length``, ``strategy``, ``init``,
     ``final_metrics`` as the generator's; ``source``: attrs naming where they came from, e.g. the file and its
-    hash), and ``cogail data`` writes them as the split's file."""
+    hash), and ``cogail data`` writes them as the split's file. ``play_keys`` / ``play_idle`` / ``play_help``: for a
+    discrete human, the keys of ``cogail play`` (``KeyboardEvent.code`` -> choice), its choice when no key is pressed,
+    and the page's help line; ``play_hz``: the steps per second ``cogail play`` runs at by default."""
 
     name: str
     env: Callable[..., Any]
@@ -116,6 +118,10 @@ class Task:
     description: str = ""
     train_env: Mapping[str, Any] = field(default_factory=dict)
     recorded: Callable[..., Mapping[str, Any]] | None = None
+    play_keys: Mapping[str, int] = field(default_factory=dict)
+    play_idle: int = 0
+    play_help: str = ""
+    play_hz: float = 15.0
 
 
     def make_env(self, **kwargs):

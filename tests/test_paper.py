@@ -388,7 +388,10 @@ def test_shipped_labels_match_the_task_configs():
     from cogail_envs import builtin_task_names, get_task
 
     runs = paper.shipped_runs()
-    assert {t for t, b, _ in runs if b == "paper"} == set(builtin_task_names())
+    # every built-in task with a scripted team (the paper's tasks) has its shipped row; a task learned from people's
+    # recordings (overcooked) is judged by the field's protocol instead and has none yet
+    scripted = {t for t in builtin_task_names() if get_task(t).team is not None}
+    assert {t for t, b, _ in runs if b == "paper"} == scripted
     for task, budget, label in runs:
         cfg = get_task(task).config(budget)
         varied = re.search(r"train-varied-(\d+)", label)

@@ -244,7 +244,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="where trials are appended (default: trials.hdf5 in the first --run)")
     pl.add_argument("--max-steps", type=_positive, default=None,
                     help="end a trial after this many steps (default: the task's episode length)")
-    pl.add_argument("--hz", type=float, default=15.0, help="steps per second the page asks for (default 15)")
+    pl.add_argument("--hz", type=float, default=None, help="steps per second the page asks for (default: the task's, "
+                    "15 for most)")
     pl.add_argument("--seed", type=int, default=0, help="seed of the blind order and the start states")
 
     b = sub.add_parser("bench", help="throughput table: env-only, Co-GAIL train_step (1 and 3 seeds), brax PPO",

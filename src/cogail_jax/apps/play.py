@@ -53,6 +53,29 @@ HELP = {
 }
 
 
+# gamepad: the left stick's direction and the A button as the keys a discrete task's ``play_keys`` name
+PAD_KEYS = {(0, 1): "ArrowRight", (0, -1): "ArrowLeft", (1, 1): "ArrowDown", (1, -1): "ArrowUp"}
+
+
+def discrete_action(size: int, choices: dict, idle: int, keys, axes=(), buttons=()) -> tuple[np.ndarray, bool]:
+    """A discrete human's one-hot action from the pressed keys: the choice of the last pressed key that the task's
+    ``play_keys`` maps (``choices``: key code -> choice), else ``idle`` (e.g. stay); a gamepad's left stick past half
+    way and its A button count as the arrow keys and Space. Returns the action and whether a mapped key was pressed
+    (which starts a trial)."""
+    keys = list(keys)
+    ax = np.zeros(2, np.float32)
+    ax[: min(2, len(axes))] = np.asarray(list(axes)[:2], np.float32)
+    if np.max(np.abs(ax)) > 0.5:
+        i = int(np.argmax(np.abs(ax)))
+        keys.append(PAD_KEYS[(i, 1 if ax[i] > 0 else -1)])
+    if buttons and buttons[0]:
+        keys.append("Space")
+    mapped = [choices[k] for k in keys if k in choices]
+    a = np.zeros(size, np.float32)
+    a[mapped[-1] if mapped else idle] = 1.0
+    return a, bool(mapped)
+
+
 def human_action(size: int, keys, axes=(), gripper: float = 1.0) -> np.ndarray:
     """The human's action from the pressed keys (``KeyboardEvent.code`` names) and gamepad axes (standard
     mapping: left stick 0/1, right stick 2/3; up is negative). 2 dims: (dx, dy); 7 dims: 6D delta + gripper."""
@@ -205,7 +228,8 @@ class Game:
 
     def step(self, a_h: np.ndarray, start: bool = False) -> None:
         """One env step with the person's action (the first non-zero action or ``start`` starts the trial)."""
-        if self.status == "ready" and (start or np.any(a_h != 0)):
+        discrete = bool(getattr(self.env, "human_action_discrete", False))  # its idle action is not zero
+        if self.status == "ready" and (start or (not discrete and np.any(a_h != 0))):
             self.status = "running"
         if self.status != "running":
             return
@@ -217,10 +241,11 @@ class Game:
         self.ar.append(np.asarray(a_r))
         self.state, self.prev_ah, self.z = nxt, a_h, [float(v) for v in np.asarray(z)]
         self._frame = None
-        if float(nxt.metrics["success"]) > 0:
+        success = float(nxt.metrics["success"]) > 0
+        if float(nxt.done) > 0 or len(self.obs) >= self.max_steps:  # a task may go on after success (a score)
+            self.finish("success" if success else "timeout")
+        elif success and not self.env.score_metric:
             self.finish("success")
-        elif float(nxt.done) > 0 or len(self.obs) >= self.max_steps:
-            self.finish("timeout")
 
     def finish(self, end: str = "ended") -> None:
         """End the running trial and append it to the trials file."""
@@ -260,19 +285,33 @@ class App:
 
     def config(self) -> dict:
         env = self.game.env
-        six = env.human_action_size > 2
-        keys = sorted({*(KEYS_6D if six else KEYS_2D), "Space", "Enter"})
         from cogail_envs import get_task
 
-        return {"task": env.name, "hz": self.hz, "help": HELP["6d" if six else "2d"], "keys": keys,
-                "policies": len(self.game.policies), "legend": [list(x) for x in get_task(env.name).legend]}
+        task = get_task(env.name)
+        if getattr(env, "human_action_discrete", False):
+            keys, text = sorted({*task.play_keys, "Enter"}), task.play_help + "\nEnter: start / next trial"
+        else:
+            six = env.human_action_size > 2
+            keys, text = sorted({*(KEYS_6D if six else KEYS_2D), "Space", "Enter"}), HELP["6d" if six else "2d"]
+        return {"task": env.name, "hz": self.hz, "help": text, "keys": keys, "discrete": bool(
+                getattr(env, "human_action_discrete", False)),
+                "policies": len(self.game.policies), "legend": [list(x) for x in task.legend]}
 
     # handlers (run on the worker thread)
     def do_step(self, body: dict) -> dict:
         g = self.game
-        a_h = human_action(g.env.human_action_size, body.get("keys", []), body.get("axes", []),
-                           float(body.get("gripper", 1.0)))
-        g.step(a_h, bool(body.get("start", False)))
+        start = bool(body.get("start", False))
+        if getattr(g.env, "human_action_discrete", False):
+            from cogail_envs import get_task
+
+            task = get_task(g.env.name)
+            a_h, pressed = discrete_action(g.env.human_action_size, dict(task.play_keys), task.play_idle,
+                                           body.get("keys", []), body.get("axes", []), body.get("buttons", []))
+            start = start or pressed
+        else:
+            a_h = human_action(g.env.human_action_size, body.get("keys", []), body.get("axes", []),
+                               float(body.get("gripper", 1.0)))
+        g.step(a_h, start)
         return g.view()
 
     def do_end(self, body: dict) -> dict:
@@ -346,7 +385,7 @@ def bind(port: int) -> ThreadingHTTPServer:
 
 
 def open_study(runs: list[str | Path], task: str | None = None, port: int = 8765, trials: str | Path | None = None,
-                 checkpoint: str = "best", max_steps: int | None = None, hz: float = 15.0, seed: int = 0,
+                 checkpoint: str = "best", max_steps: int | None = None, hz: float | None = None, seed: int = 0,
                  log=print) -> ThreadingHTTPServer:
     """Check the runs, bind the port, load the policies, compile and warm up; returns the bound server
     (``server.app``), ready for ``serve_forever``."""
@@ -360,6 +399,7 @@ def open_study(runs: list[str | Path], task: str | None = None, port: int = 8765
         if c.task != task:
             raise RunError(f"{r} holds a {c.task} checkpoint but {runs[0]} a {task} one: play one task at a time")
     env = cogail_envs.make_env(task)
+    hz = float(hz or cogail_envs.get_task(task).play_hz)
     trials = Path(trials) if trials else Path(runs[0]) / "trials.hdf5"
     data.check_appendable(trials, env)
     server = bind(port)
@@ -400,7 +440,7 @@ def close(server: ThreadingHTTPServer) -> None:
     server.app.pool.shutdown(wait=True)
 
 
-def serve(runs, task=None, port=8765, trials=None, checkpoint="best", max_steps=None, hz=15.0, seed=0) -> int:
+def serve(runs, task=None, port=8765, trials=None, checkpoint="best", max_steps=None, hz=None, seed=0) -> int:
     """``cogail play``: serve until Ctrl-C."""
     server = open_study(runs, task, port, trials, checkpoint, max_steps, hz, seed)
     game = server.app.game

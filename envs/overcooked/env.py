@@ -1,0 +1,171 @@
+"""Overcooked-AI (Carroll et al., NeurIPS 2019) as a collaboration task, on JaxMARL's v1 ``Overcooked`` (pure JAX).
+
+Two cooks share a kitchen (:mod:`.kitchen`: five layouts). A soup is three onions put into a pot; it cooks for 20
+steps, is ladled onto a plate and served at a serving spot (20 points). The game's dynamics are JaxMARL's,
+unchanged: this class wraps its ``step_env`` (no auto-reset) and reads the events it needs off the states.
+
+Agents: the human is JaxMARL's ``agent_0`` (player 0 of the people's trials), the robot ``agent_1`` (player 1).
+Each has 6 discrete actions: 0 up, 1 down, 2 right, 3 left, 4 stay, 5 interact (y points down); ``step`` takes
+``concat(a_H, a_R)`` as two one-hot vectors (12 floats) and acts on the argmax of each half.
+
+Observation: ``agent_0``'s JaxMARL observation, an (H, W, 26) grid of feature planes (``obs_grid``; the human's
+planes first, then the robot's, then the kitchen's, pots and items, and the last-40-steps urgency plane),
+flattened to float32. Reward: JaxMARL's, 20 per delivered soup (shared). Episodes last ``max_episode_steps``
+(400); nothing ends them earlier, so every end is a truncation.
+
+Metrics (float32, counted over the episode): ``soups`` (deliveries), ``success`` (1 once a soup was delivered),
+and each agent's share of the work, ``_h`` for the human and ``_r`` for the robot:
+
+* ``onions_h/_r``  onions put into a pot;
+* ``plates_h/_r``  plates picked up (from the pile or a counter);
+* ``dished_h/_r``  ready soups ladled from a pot onto a plate;
+* ``served_h/_r``  soups delivered.
+
+Strategy (:meth:`Overcooked.classify_strategy`): the division of labour between cooking (putting onions in) and
+serving (ladling a soup and carrying it out). With the human's shares ``cook_h = onions_h / (onions_h + onions_r)``
+and ``serve_h = (dished_h + served_h) / (dished_h + dished_r + served_h + served_r)`` (1/2 where neither did it),
+a job is an agent's when its share is at least 2/3 (:data:`SHARE`), and::
+
+    0  none                          no soup delivered
+    1  human cooks, robot serves     cook_h >= 2/3 and serve_h <= 1/3
+    2  robot cooks, human serves     cook_h <= 1/3 and serve_h >= 2/3
+    3  shared                        anything else: at least one job done by both (shares in (1/3, 2/3))
+    4  human cooks and serves        cook_h >= 2/3 and serve_h >= 2/3 (the robot fetches, e.g. forced coordination)
+    5  robot cooks and serves        cook_h <= 1/3 and serve_h <= 1/3
+
+Start (``sample_init``): the agents on the trials' start cells (:data:`~.kitchen.TRIAL_STARTS`; ``start="jaxmarl"``:
+JaxMARL's layout start cells instead), facing random directions as JaxMARL's reset draws them, empty hands, pots and
+counters. ``reset_from(init)`` starts from any game state (:mod:`.kitchen` has the init vector's layout).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..base import CollabEnv, State
+from . import kitchen as kt
+
+NUM_ACTIONS = 6
+ACTION_NAMES = ("up", "down", "right", "left", "stay", "interact")
+STAY, INTERACT = 4, 5
+OBS_CHANNELS = 26
+STARTS = ("trials", "jaxmarl")
+DELIVERY_REWARD = 20.0  # JaxMARL's reward per delivered soup
+SHARE = 2.0 / 3.0  # the share of a job that makes it an agent's (classify_strategy; _owner's arithmetic)
+METRICS = ("success", "soups", "onions_h", "onions_r", "plates_h", "plates_r", "dished_h", "dished_r",
+           "served_h", "served_r")
+
+
+class Overcooked(CollabEnv):
+    """Overcooked-AI on JaxMARL, with brax's ``Env`` API (see the module docstring)."""
+
+    human_action_size = NUM_ACTIONS
+    robot_action_size = NUM_ACTIONS
+    human_action_discrete = True
+    robot_action_discrete = True
+    score_metric = "soups"
+    strategy_names = ("human cooks, robot serves", "robot cooks, human serves", "shared", "human cooks and serves",
+                      "robot cooks and serves")
+
+    def __init__(self, kitchen: str = "cramped_room", max_episode_steps: int = 400, start: str = "trials"):
+        if start not in STARTS:
+            raise ValueError(f"unknown start {start!r}: choose one of {', '.join(STARTS)}")
+        self.kitchen = kitchen
+        self.geometry = kt.kitchen_geometry(kitchen)  # raises for an unknown kitchen
+        self.max_episode_steps = int(max_episode_steps)
+        self.start = start
+        self.name = "overcooked" if kitchen == "cramped_room" else f"overcooked_{kitchen}"
+        # the dynamics (JaxMARL v1), the observation and init layouts and the start (version fingerprint)
+        self.spec_tag = f"overcooked-v1-{kitchen}" + ("" if start == "trials" else f"-{start}")
+        self.init_size = self.geometry.init_size
+        self.obs_grid = (self.geometry.height, self.geometry.width, OBS_CHANNELS)
+        self._game = kt.jaxmarl_game(kitchen, self.max_episode_steps)
+
+    @property
+    def observation_size(self) -> int:
+        return int(np.prod(self.obs_grid))
+
+    # ------------------------------------------------------------------ dynamics
+    def sample_init(self, rng: jax.Array) -> jax.Array:
+        """The task's start (module docstring): fixed cells, empty hands, pots and counters; random facings."""
+        cells = self.geometry.start if self.start == "trials" else self.geometry.jaxmarl_start
+        return kt.start_init(self.geometry, jax.random.randint(rng, (2,), 0, 4), cells)
+
+    def reset_from(self, init: jax.Array) -> State:
+        ps = kt.state_from_init(self.geometry, init)
+        zero = jnp.zeros((), jnp.float32)
+        metrics = {k: zero for k in METRICS}
+        info = {"t": jnp.zeros((), jnp.int32), "truncation": zero}
+        return State(ps, self._obs(ps), zero, zero, metrics, info)
+
+    def encode(self, state: State) -> jax.Array:
+        """The init vector of a state (``reset_from(encode(s))`` restores the game state of ``s``)."""
+        return kt.init_from_state(self.geometry, state.pipeline_state)
+
+    def _obs(self, ps) -> jax.Array:
+        return self._game.get_obs(ps)["agent_0"].astype(jnp.float32).reshape(-1)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        ps = state.pipeline_state
+        acts = jnp.argmax(jnp.asarray(action).reshape(2, NUM_ACTIONS), axis=-1).astype(jnp.int32)
+        obs, nps, rewards, _, _ = self._game.step_env(jax.random.PRNGKey(0), ps, {"agent_0": acts[0],
+                                                                                  "agent_1": acts[1]})
+        before, after = ps.agent_inv, nps.agent_inv
+        ahead = (ps.agent_pos.astype(jnp.int32) + ps.agent_dir.astype(jnp.int32))  # the cell each agent faces
+        facing = jnp.asarray(self.geometry.cells)[ahead[:, 1], ahead[:, 0]]
+        events = {
+            "onions": (before == kt.ONION) & (after == kt.EMPTY) & (facing == kt.POT_CELL),
+            "plates": (before == kt.EMPTY) & (after == kt.PLATE),
+            "dished": (before == kt.PLATE) & (after == kt.DISH) & (facing == kt.POT_CELL),
+            "served": (before == kt.DISH) & (after == kt.EMPTY) & (facing == kt.GOAL_CELL),
+        }
+        m = dict(state.metrics)
+        for name, happened in events.items():
+            happened = happened.astype(jnp.float32)
+            m[f"{name}_h"] = m[f"{name}_h"] + happened[0]
+            m[f"{name}_r"] = m[f"{name}_r"] + happened[1]
+        m["soups"] = m["soups"] + jnp.sum(events["served"].astype(jnp.float32))
+        m["success"] = (m["soups"] > 0).astype(jnp.float32)
+        t = state.info["t"] + 1
+        done, truncation = self.time_limit(t, jnp.zeros((), bool))
+        info = dict(state.info, t=t, truncation=truncation)
+        reward = jnp.asarray(rewards["agent_0"], jnp.float32)
+        obs = obs["agent_0"].astype(jnp.float32).reshape(-1)
+        return state.replace(pipeline_state=nps, obs=obs, reward=reward, done=done, metrics=m, info=info)
+
+    # ------------------------------------------------------------------ strategies
+    def classify_strategy(self, metrics: dict[str, jax.Array]) -> jax.Array:
+        cook = _owner(metrics["onions_h"], metrics["onions_r"])
+        serve = _owner(metrics["dished_h"] + metrics["served_h"], metrics["dished_r"] + metrics["served_r"])
+        sid = jnp.select([(cook == 1) & (serve == 2), (cook == 2) & (serve == 1), (cook == 1) & (serve == 1),
+                          (cook == 2) & (serve == 2)], [1, 2, 4, 5], 3)
+        return jnp.where(metrics["success"] > 0, sid, 0).astype(jnp.int32)
+
+    # ------------------------------------------------------------------ rendering
+    def render(self, state: State, width: int = 320, height: int = 240, camera: str | None = None) -> np.ndarray:
+        """An RGB frame (height, width, 3) of the kitchen (one view: ``camera`` is ignored)."""
+        from .render import render_frame
+
+        init = np.asarray(jax.device_get(self.encode(state)))
+        return render_frame(self.geometry, init, width, height)
+
+    def human_position(self, state: State) -> jax.Array:
+        """The human's cell (x, y), y down."""
+        return state.pipeline_state.agent_pos[0].astype(jnp.float32)
+
+
+def _owner(human: jax.Array, robot: jax.Array) -> jax.Array:
+    """Whose job it is from how often each did it: 1 the human's (share >= 2/3), 2 the robot's (human's share
+    <= 1/3), 0 both's (in between, or neither did it). Exact for counts: ``3 h >= 2 (h + r)``."""
+    total = human + robot
+    mine = (3 * human >= 2 * total) & (total > 0)
+    theirs = (3 * robot >= 2 * total) & (total > 0)
+    return jnp.where(mine, 1, jnp.where(theirs, 2, 0))
+
+
+def one_hot_actions(ids: Any) -> np.ndarray:
+    """One-hot float32 vectors (..., 6) of action ids."""
+    return np.eye(NUM_ACTIONS, dtype=np.float32)[np.asarray(ids, np.int64)]

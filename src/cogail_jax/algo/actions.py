@@ -103,6 +103,26 @@ def mode(spec: ActionSpec, mean):
                             else jnp.clip(x, -1.0, 1.0) for x, d in _split(spec, mean)], -1)
 
 
+def act(spec: ActionSpec, mean, key):
+    """The action evaluation takes: a continuous part's clipped mean (deterministic, the paper's protocol), a
+    discrete part's choice drawn from its categorical with ``key`` (a discrete policy's argmax is not the policy it
+    was trained as: in Overcooked two argmax agents block each other for good, and the field's agents sample)."""
+    if spec.continuous:
+        return mode(spec, mean)
+    parts = []
+    for i, (s, n, d) in enumerate(spec.segments):
+        x = mean[..., s:s + n]
+        parts.append(agent_act(d, x, jax.random.fold_in(key, i)))
+    return jnp.concatenate(parts, -1)
+
+
+def agent_act(discrete: bool, mean, key):
+    """One agent's part of :func:`act`."""
+    if discrete:
+        return jax.nn.one_hot(jax.random.categorical(key, mean), mean.shape[-1], dtype=mean.dtype)
+    return jnp.clip(mean, -1.0, 1.0)
+
+
 def agent_mode(discrete: bool, mean):
     """One agent's deterministic action from its part of the actor's output."""
     if discrete:
@@ -132,5 +152,6 @@ def joint_error(spec: ActionSpec, mean, target):
     return sum(agent_error(d, mean[..., s:s + n], target[..., s:s + n]) for s, n, d in spec.segments)
 
 
-__all__ = ["ActionSpec", "spec_of", "sample", "clip_continuous", "log_prob", "entropy", "mode", "agent_mode",
+__all__ = ["ActionSpec", "spec_of", "sample", "clip_continuous", "log_prob", "entropy", "mode", "act", "agent_act",
+           "agent_mode",
            "agent_expected", "agent_error", "joint_error"]

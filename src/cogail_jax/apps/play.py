@@ -96,6 +96,14 @@ def human_action(size: int, keys, axes=(), gripper: float = 1.0) -> np.ndarray:
     return np.clip(a, -1.0, 1.0)
 
 
+def robot_key(env, rng: np.random.Generator) -> tuple:
+    """The robot step's extra argument: a key for a discrete robot's draw (``actions.act``), none for a continuous
+    robot (its mean)."""
+    if getattr(env, "robot_action_discrete", False):
+        return (jax.random.PRNGKey(int(rng.integers(2**31))),)
+    return ()
+
+
 # ---------------------------------------------------------------------------------------------- runs
 def read_run_config(run_dir: str | Path, task: str | None = None) -> TrainConfig:
     """The run's config; ``RunError`` if ``run_dir`` is not a run or belongs to another task than ``task``."""
@@ -235,7 +243,8 @@ class Game:
             return
         p = self.policy
         a_h = jnp.asarray(a_h, jnp.float32)
-        nxt, self.hist, z, a_r = p.step(p.params, p.norm, self.state, self.hist, self.prev_ah, a_h)
+        nxt, self.hist, z, a_r = p.step(p.params, p.norm, self.state, self.hist, self.prev_ah, a_h, *robot_key(
+            self.env, self.rng))
         self.obs.append(np.asarray(self.state.obs))
         self.ah.append(np.asarray(a_h))
         self.ar.append(np.asarray(a_r))
@@ -420,7 +429,8 @@ def open_study(runs: list[str | Path], task: str | None = None, port: int = 8765
                 game.hist = jnp.repeat(game.state.obs[None], p.history + 1, 0)
                 st, h, prev = game.state, game.hist, game.prev_ah
                 for _ in range(2):
-                    st, h, _, _ = p.step(p.params, p.norm, st, h, prev, jnp.zeros_like(prev))
+                    st, h, _, _ = p.step(p.params, p.norm, st, h, prev, jnp.zeros_like(prev),
+                                         *robot_key(penv, np.random.default_rng(0)))
                 jax.block_until_ready(st.obs)
             game.order = []
             game.new_trial()

@@ -65,7 +65,7 @@ def _run_rollouts(run: Path, num: int, steps: int | None):
 
     def policy(st, t, key):
         mean, _ = actor(params["actor"], (st.obs - norm["mean"]) / norm["std"], z)
-        return actions.mode(actions.spec_of(env), mean)
+        return actions.act(actions.spec_of(env), mean, key)
 
     states0 = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(7), num))
     interp = jax.jit(lambda s0: _rollout_states(env, policy, s0, T))(states0)

@@ -299,7 +299,7 @@ def make_coplay_fn(env, cfg=None, nets=None):
         if learned:
             z = psi_code(params, norm, hist[-(K + 1):], prev_ah)
             mean, _ = actor(params["actor"], (state.obs - norm["mean"]) / norm["std"], z)
-            a_r = actions.agent_mode(spec.robot_discrete, mean[Ah:])
+            a_r = actions.agent_act(spec.robot_discrete, mean[Ah:], jax.random.fold_in(k_r, 2))
         if robot_act is not None:
             ts_r, a_s = robot_act(env, ts_r, state, k_r)
             a_r = jnp.where(ep["scripted_robot"], a_s, a_r)

@@ -56,6 +56,9 @@ def interpolation_codes(n: int) -> jnp.ndarray:
     return jax.random.uniform(jax.random.PRNGKey(0), (n, 2), minval=-1, maxval=1)
 
 
+EVAL_SEED = 97  # a discrete agent's choices in evaluation: episode i's draw at step t from fold_in(fold_in(key, i), t)
+
+
 def make_robot_step(cfg: TrainConfig, env, nets):
     """The robot of the replay protocol (and of ``cogail play``): pi_R(s, psi(h)), deterministic.
 
@@ -63,8 +66,9 @@ def make_robot_step(cfg: TrainConfig, env, nets):
 
     * ``psi_code(params, norm, hist, prev_ah) -> z``: psi's code of the history ``hist`` (K + 1 raw
       observations s_{t-K..t}) and the human's previous action (zeros for presets without a code);
-    * ``robot_step(params, norm, state, hist, prev_ah, a_h) -> (next_state, next_hist, z, a_r)``: one env
-      step with the human's action ``a_h`` given and the robot's action from pi_R(s, psi(h)).
+    * ``robot_step(params, norm, state, hist, prev_ah, a_h, key=None) -> (next_state, next_hist, z, a_r)``: one
+      env step with the human's action ``a_h`` given and the robot's action from pi_R(s, psi(h)) (a discrete robot's
+      choice is drawn with ``key``, else its most likely one: ``actions.act``).
     """
     actor, psi = nets["actor"].apply, nets["psi"].apply
     Ah, spec = env.human_action_size, actions.spec_of(env)
@@ -77,10 +81,11 @@ def make_robot_step(cfg: TrainConfig, env, nets):
         z = psi(params["psi"], jnp.concatenate([h, prev_ah]))
         return z if cfg.use_code else jnp.zeros_like(z)
 
-    def robot_step(params, norm, state, hist, prev_ah, a_h):
+    def robot_step(params, norm, state, hist, prev_ah, a_h, key=None):
         z = psi_code(params, norm, hist, prev_ah)
         mean, _ = actor(params["actor"], normalize(norm, state.obs), z)
-        a_r = actions.agent_mode(spec.robot_discrete, mean[Ah:])
+        a_r = (actions.agent_mode(spec.robot_discrete, mean[Ah:]) if key is None else
+               actions.agent_act(spec.robot_discrete, mean[Ah:], key))
         nxt = env.step(state, jnp.concatenate([a_h, a_r]))
         return nxt, jnp.concatenate([hist[1:], nxt.obs[None]], 0), z, a_r
 
@@ -115,20 +120,20 @@ def _episodes_fn(cfg: TrainConfig, env, nets):
     spec = actions.spec_of(env)
     psi_code, _ = make_robot_step(cfg, env, nets)
 
-    def act(params, norm, state, hist, prev_ah, ep, p):
+    def act(params, norm, state, hist, prev_ah, ep, p, key):
         """The joint action and the human's; ``p``: the replayed human's position in its recording."""
         z = jnp.where(ep["replay"], psi_code(params, norm, hist, prev_ah),
                       ep["code"] if cfg.use_code else jnp.zeros_like(ep["code"]))
         mean, _ = actor(params["actor"], (state.obs - norm["mean"]) / norm["std"], z)
-        a = actions.mode(spec, mean)
+        a = actions.act(spec, mean, key)
         recorded = jnp.where(p < ep["length"], ep["ah"][jnp.minimum(p, ep["ah"].shape[0] - 1)], 0.0)
         wait, a_wait = env.replay_hold(state, recorded)
         wait = wait & ep["patient"] & ep["replay"]
         a_h = jnp.where(ep["replay"], jnp.where(wait, a_wait, recorded), a[:Ah])
         return jnp.concatenate([a_h, a[Ah:]]), a_h, p + 1 - wait.astype(p.dtype)
 
-    per_param = jax.vmap(act, in_axes=(None, None, 0, 0, 0, 0, 0))  # episodes
-    act_all = jax.vmap(per_param, in_axes=(0, 0, 0, 0, 0, None, 0))  # parameter sets
+    per_param = jax.vmap(act, in_axes=(None, None, 0, 0, 0, 0, 0, 0))  # episodes
+    act_all = jax.vmap(per_param, in_axes=(0, 0, 0, 0, 0, None, 0, None))  # parameter sets (the same draws)
 
     def run(params, norm, eps):
         P, E = jax.tree.leaves(params)[0].shape[0], eps["init"].shape[0]
@@ -139,11 +144,14 @@ def _episodes_fn(cfg: TrainConfig, env, nets):
         length = _flat(jnp.broadcast_to(jnp.where(eps["replay"], eps["length"], 0), (P, E)))
         never = jnp.iinfo(jnp.int32).max - margin
 
-        def body(carry, _):
+        def body(carry, step):
             state, hist, prev_ah, fin, pos, rec_end = carry
             unflat = lambda x: x.reshape((P, E) + x.shape[1:])  # noqa: E731
+            # a discrete agent's draws: episode i's at this step, the same for every parameter set
+            keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(EVAL_SEED), i), step)
+                            )(jnp.arange(E))
             action, a_h, pos = act_all(params, norm, jax.tree.map(unflat, state), unflat(hist), unflat(prev_ah),
-                                       eps, unflat(pos))
+                                       eps, unflat(pos), keys)
             pos = _flat(pos)
             nxt = jax.vmap(env.step)(state, _flat(action))
             t = nxt.info["t"]
@@ -157,7 +165,7 @@ def _episodes_fn(cfg: TrainConfig, env, nets):
         carry = (state, hist, jnp.zeros((P * E, Ah)), jnp.zeros((P * E,), bool), jnp.zeros((P * E,), jnp.int32),
                  jnp.where(length > 0, never, 0))
         steps = max(Tenv, eps["ah"].shape[1])
-        (state, _, _, _, _, _), _ = jax.lax.scan(body, carry, None, length=steps)
+        (state, _, _, _, _, _), _ = jax.lax.scan(body, carry, jnp.arange(steps))
         return jax.tree.map(lambda x: x.reshape((P, E) + x.shape[1:]), state.metrics)
 
     return run

@@ -72,9 +72,20 @@ PAD = 4  # JaxMARL pads its maze map by agent_view_size - 1 = 4 cells on each si
 @functools.lru_cache(maxsize=None)
 def jaxmarl_overcooked():
     """JaxMARL's v1 Overcooked module, imported on first use (its package prints a line and warns on import)."""
-    with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        from jaxmarl.environments.overcooked import overcooked
+    import os
+    import sys
+
+    sys.stdout.flush()
+    saved = os.dup(1)  # at the descriptor: a module it imports on the way swaps sys.stdout back
+    try:
+        with open(os.devnull, "w") as null, contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+            os.dup2(null.fileno(), 1)
+            warnings.simplefilter("ignore")
+            from jaxmarl.environments.overcooked import overcooked
+            sys.stdout.flush()
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
     return overcooked
 
 

@@ -87,9 +87,6 @@ class TrainConfig:
     # each agent's frame and the reverse), "both" all of them, "object" the object-centric features instead of the
     # absolute orientations (the env's ``orientation_dims``: nothing that tells how the scene is turned)
     obs_frame: str = "both"
-    # what reads the observation in the co-policy and the critic: "mlp" (the paper's, on the flat observation) or
-    # "cnn" (networks.GridEncoder, for a task whose observation is a grid: its env's ``obs_grid``)
-    encoder: str = "mlp"
     # discriminator
     disc_loss: str = "auto"  # "bce" | "lsgan" | "auto" (the task's default_config(), else lsgan)
     disc_lr: float = 3e-4
@@ -190,8 +187,6 @@ class TrainConfig:
                 f"must be divisible by num-minibatches ({self.num_minibatches})")
         if self.obs_frame not in OBS_FRAMES:
             raise ConfigError(f"obs_frame must be one of {', '.join(OBS_FRAMES)}, got {self.obs_frame!r}")
-        if self.encoder not in ("mlp", "cnn"):
-            raise ConfigError(f"encoder must be mlp or cnn, got {self.encoder!r}")
         if not self.obs_std_floor > 0:
             raise ConfigError(f"obs_std_floor must be positive, got {self.obs_std_floor}")
         if self.multi_device not in ("auto", "shard_map", "per_device"):
@@ -253,7 +248,7 @@ class TrainConfig:
 
 # Fields removed after they measured no gain (docs/notes.md), with the value every run had unless asked otherwise: a
 # run's config.json holding that value still loads; another value stops with what to do.
-REMOVED = {"la_codes": "demo", "bc_codes": "demo"}
+REMOVED = {"la_codes": "demo", "bc_codes": "demo", "encoder": "mlp"}
 
 
 # The fields that only the training update reads (its losses, optimiser steps and schedule): the programs that do not

@@ -21,37 +21,16 @@ class MLP(nn.Module):
         return nn.Dense(self.out)(x)
 
 
-class GridEncoder(nn.Module):
-    """A small CNN over an observation that is a grid (the env's ``obs_grid`` = (H, W, C), flattened in the
-    observation): two 3 x 3 convolutions (32 channels, ReLU) -> flatten -> 128 units (ReLU)."""
-
-    grid: Sequence[int]
-
-    @nn.compact
-    def __call__(self, obs):
-        h, w, c = self.grid
-        lead = obs.shape[:-1]
-        x = obs.reshape((-1, h, w, c))
-        for _ in range(2):
-            x = nn.relu(nn.Conv(32, (3, 3), padding="SAME")(x))
-        x = nn.relu(nn.Dense(128)(x.reshape((x.shape[0], -1))))
-        return x.reshape(lead + (128,))
-
-
 class Actor(nn.Module):
     """Co-policy pi_co(a_H, a_R | s, z): 4 x 128 MLP -> per action dimension a Gaussian mean (state-independent log
-    std) or, for a discrete agent, a logit of its choices (``actions``). ``grid``: read the observation with a
-    ``GridEncoder`` first."""
+    std) or, for a discrete agent, a logit of its choices (``actions``)."""
 
     action_size: int
     init_log_std: float = -0.5
     human_size: int = 0  # > 0: separate human and robot towers (BC-GAIL freezes the human one)
-    grid: Sequence[int] = ()
 
     @nn.compact
     def __call__(self, obs, z):
-        if self.grid:
-            obs = GridEncoder(self.grid)(obs)
         x = jnp.concatenate([obs, z], -1)
         if self.human_size:
             mean = jnp.concatenate([MLP((128,) * 4, self.human_size, name="human")(x),
@@ -63,14 +42,10 @@ class Actor(nn.Module):
 
 
 class Critic(nn.Module):
-    """Value V(s, z): 4 x 128 MLP -> 1 (``grid``: a ``GridEncoder`` first)."""
-
-    grid: Sequence[int] = ()
+    """Value V(s, z): 4 x 128 MLP -> 1."""
 
     @nn.compact
     def __call__(self, obs, z):
-        if self.grid:
-            obs = GridEncoder(self.grid)(obs)
         return MLP((128,) * 4, 1)(jnp.concatenate([obs, z], -1))[..., 0]
 
 
@@ -102,33 +77,11 @@ def disc_kind(cfg, env) -> str:
     return task_default(cfg.task, "disc_loss", "lsgan") if cfg.disc_loss == "auto" else cfg.disc_loss
 
 
-def encoder_grid(cfg, env) -> tuple:
-    """The grid the co-policy's and critic's CNN reads (``cfg.encoder`` "cnn"), or () for the MLP on the flat
-    observation."""
-    if cfg.encoder != "cnn":
-        return ()
-    grid = tuple(getattr(env, "obs_grid", ()) or ())
-    if len(grid) != 3 or np_prod(grid) != env.observation_size:
-        from .config import ConfigError
-
-        raise ConfigError(f"encoder=cnn reads a grid observation, and task {env.name} has none (no obs_grid): use "
-                          "--set encoder=mlp")
-    return grid
-
-
-def np_prod(xs) -> int:
-    out = 1
-    for x in xs:
-        out *= int(x)
-    return out
-
-
 def make_networks(cfg, env) -> dict[str, nn.Module]:
     """The four networks of a run (BC-GAIL's actor has separate human and robot towers)."""
-    grid = encoder_grid(cfg, env)
     return {
-        "actor": Actor(env.action_size, cfg.init_log_std, env.human_action_size if cfg.freeze_human else 0, grid),
-        "critic": Critic(grid),
+        "actor": Actor(env.action_size, cfg.init_log_std, env.human_action_size if cfg.freeze_human else 0),
+        "critic": Critic(),
         "psi": Psi(cfg.code_dim),
         "disc": Discriminator(squash=disc_kind(cfg, env) == "lsgan"),
     }

@@ -1,0 +1,87 @@
+"""``cogail play`` on an Overcooked run, in headless Chromium: a tap of an arrow key moves the person's cook one cell,
+Space interacts, and the trial is saved with one-hot actions in the project's format."""
+from __future__ import annotations
+
+import threading
+
+import h5py
+import numpy as np
+import pytest
+
+import cogail_envs
+from cogail_jax.apps import play, train_loop
+from cogail_jax.data import io as data
+from cogail_jax.data import recorded
+from test_play import _attr, _hold, _wait_status, browser  # noqa: F401  (the headless Chromium fixture)
+
+
+@pytest.fixture(scope="module")
+def oc_run(tiny_cfg, tmp_path_factory):
+    """A one-seed overcooked run holding its initial checkpoint, from two test-split episodes of people."""
+    d = tmp_path_factory.mktemp("oc-play")
+    env = cogail_envs.make_env("overcooked")
+    rec = cogail_envs.get_task("overcooked").recorded(env, "test")
+    eps = recorded.episodes(rec)
+    keep = eps._replace(**{k: getattr(eps, k)[:2, :60] if getattr(eps, k).ndim > 2 else getattr(eps, k)[:2]
+                           for k in ("obs", "actions_human", "actions_robot", "length", "strategy", "executed",
+                                     "success", "init")},
+                        final_metrics={k: np.asarray(v)[:2] for k, v in eps.final_metrics.items()})
+    keep = keep._replace(length=np.minimum(keep.length, 60))
+    path = data.save_demos(d / "people.hdf5", env, keep)
+    cfg = tiny_cfg.replace(task="overcooked", seeds=(3,), demos=str(path), heldout=str(path), validation=str(path),
+                           train_varied=0, num_envs=2, unroll_length=8)
+    run = d / "run"
+    train_loop.train_run(cfg, run, progress=False, stop_after=0)
+    return run
+
+
+def test_play_overcooked_in_the_browser(oc_run, browser):  # noqa: F811
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+
+    trials = oc_run.parent / "trials.hdf5"
+    srv = play.open_study([oc_run], port=0, trials=trials, max_steps=40, log=lambda *a: None)
+    assert srv.app.hz == 7.0  # the task's own pace (the people of the trials played about 6.7 steps a second)
+    thread = threading.Thread(target=srv.serve_forever, kwargs={"poll_interval": 0.1}, daemon=True)
+    thread.start()
+    try:
+        browser.get(f"http://127.0.0.1:{srv.server_address[1]}/")
+        _wait_status(browser, "ready")
+        assert browser.find_element(By.ID, "task").text.startswith("overcooked")
+        assert "Space: interact" in browser.find_element(By.ID, "help").text
+        x0 = float(_attr(browser, "human", "data-x"))
+        _hold(browser, Keys.ARROW_RIGHT, 0.05)  # a tap shorter than a step still moves the cook
+        _wait_status(browser, "running")
+        _hold(browser, Keys.SPACE, 0.05)
+        browser.implicitly_wait(0)
+        for _ in range(40):  # the page steps at 7 Hz: wait for the move to show
+            if float(_attr(browser, "human", "data-x")) == x0 + 1:
+                break
+            browser.execute_script("return new Promise(r => setTimeout(r, 100))")
+        assert float(_attr(browser, "human", "data-x")) == x0 + 1
+        browser.find_element(By.ID, "end").click()
+        _wait_status(browser, "failure", "success")
+    finally:
+        srv.shutdown()
+        play.close(srv)
+    with h5py.File(trials, "r") as f:
+        assert f.attrs["task"] == "overcooked" and f.attrs["num_demos"] == 1
+        d0 = f["data/demo_0"]
+        ah, ar = d0["actions_human"][()], d0["actions_robot"][()]
+        assert ah.shape[1] == ar.shape[1] == 6 and np.all(ah.sum(1) == 1) and np.all(ar.sum(1) == 1)
+        choices = ah.argmax(1).tolist()
+        assert choices[0] == 2 and 5 in choices and set(choices) <= {2, 4, 5}  # right, interact, else stay
+        assert d0["init"].shape == (cogail_envs.make_env("overcooked").init_size,)
+        assert d0.attrs["end"] == "ended" and "metric_soups" in d0.attrs
+
+
+def test_discrete_key_mapping():
+    keys = {"ArrowUp": 0, "ArrowRight": 2, "Space": 5}
+    a, pressed = play.discrete_action(6, keys, 4, [])
+    assert a.tolist() == [0, 0, 0, 0, 1, 0] and not pressed  # no key: stay
+    a, pressed = play.discrete_action(6, keys, 4, ["ArrowUp", "Space"])
+    assert a.argmax() == 5 and pressed  # the last mapped key
+    a, _ = play.discrete_action(6, keys, 4, [], axes=[0.9, 0.1])  # a gamepad's stick to the right
+    assert a.argmax() == 2
+    a, _ = play.discrete_action(6, keys, 4, [], buttons=[True])  # its A button
+    assert a.argmax() == 5

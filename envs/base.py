@@ -63,6 +63,10 @@ class CollabEnv(Env):
     # observation indices of object-centric features (the object's pose in each agent's frame and the reverse), and
     # of the absolute orientations (the agents' and the object's rotations in base or world frames): a run's
     # ``obs_frame`` chooses which of the two its networks read (algo.config)
+    # the observation as the agent in the other seat sees it, ``obs[..., seat_view]`` (a permutation of its indices
+    # that swaps the agents' own features): a task that has it can seat the robot in either place, and its people's
+    # recordings train BC models of both players (the field's protocol, cogail_jax.eval.field)
+    seat_view: Sequence[int] = ()
     object_frame_dims: Sequence[int] = ()
     orientation_dims: Sequence[int] = ()
 

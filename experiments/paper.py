@@ -68,7 +68,7 @@ MIX_SHARES = {"D1": (17, 17, 33, 33), "D2": (33, 33, 17, 17)}  # the demonstrati
 KEEP = ("task", "method", "seeds", "checkpoints", "paper_protocol", "selected", "last", "per_seed_best",
         "breakdowns_at", "strategy_distribution", "strategy_distribution_per_seed", "replay_by_strategy",
         "interpolation_events", "curves", "splits", "extra_sets",
-        "validation_strategy_distribution", "coplay")  # what paper.json keeps of results.json
+        "validation_strategy_distribution", "coplay", "field")  # what paper.json keeps of results.json
 
 
 def resolve_config(task, method, mix, seeds, extra: dict, budget: str = "paper"):
@@ -819,6 +819,11 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
     if f3:
         (out / "fig3_strategies.md").write_text(
             "# Fig. 3: strategies among successful fetchq interpolation rollouts (%)\n\n" + "\n".join(f3) + "\n")
+    field, field_long = field_rows(results), field_seat_rows(results)
+    if field:
+        (out / "field.md").write_text("# The field's protocol on people's data (Overcooked)\n\n" + FIELD_NOTE + "\n\n"
+                                      + "\n".join(field) + "\n\nPer seat, partner and H_proxy's quality (soups in "
+                                      "brackets):\n\n" + "\n".join(field_long) + "\n")
     (out / "paper.json").write_text(json.dumps(results, indent=2))
     if readme is not None:
         block = ["Table 1, replay success (%):", "", *t1, "", "Table 2, interpolation success (%):", "", *t2, "",
@@ -857,6 +862,10 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
         if stab:
             rel = os.path.relpath(out / "stability.md", readme.resolve().parent)
             block += ["", f"Selected vs last checkpoint, every run: [{Path(rel).as_posix()}]({Path(rel).as_posix()})."]
+        if field:
+            rel = Path(os.path.relpath(out / "field.md", readme.resolve().parent)).as_posix()
+            block += ["", f"The field's protocol on people's data (Overcooked; per seat and partner: [{rel}]({rel})):",
+                      "", *field, "", FIELD_NOTE]
         write_readme_block(readme, "\n".join(block))
 
 
@@ -872,6 +881,92 @@ def write_readme_block(readme: Path, text: str) -> None:
 
 
 ORDER = ("bc_single", "bc_gail", "ma_gail", "ma_infogail", "diayn", "cogail")
+
+
+def expand_tasks(tasks) -> list[str]:
+    """Each task name, a task with ``VARIANTS`` in its package followed by them (``overcooked``: its five kitchens)."""
+    import importlib
+
+    from cogail_envs import get_task, registry
+
+    out = []
+    for t in tasks:
+        out.append(t)
+        module = registry._builtin_modules().get(t)
+        if module and registry._module_task(module) is get_task(t):
+            out += [v.name for v in getattr(importlib.import_module(module), "VARIANTS", ())]
+    return list(dict.fromkeys(out))
+
+
+def default_methods(tasks) -> list[str]:
+    """The paper's six presets; with a task learned from people's recordings, the field's two baselines too."""
+    from cogail_envs import get_task
+    from cogail_jax.algo.config import FIELD_METHODS, PAPER_METHODS
+
+    people = any(get_task(t).recorded is not None for t in tasks)
+    return list(PAPER_METHODS) + (list(FIELD_METHODS) if people else [])
+
+
+FIELD_ORDER = ("bc_single", "bc_gail", "ma_gail", "ma_infogail", "diayn", "ppo_sp", "ppo_bc", "cogail")
+FIELD_PUBLISHED = {"bc_single": "bc", "ppo_bc": "ppo_bc", "ppo_sp": "ppo_sp"}  # our preset -> Carroll et al.'s agent
+
+
+def field_rows(results: dict) -> list[str]:
+    """The field's protocol table: each preset's robot with H_proxy (reward over 400 steps, mean +- s.e. over
+    episodes, both seats pooled; per seat in field.md), each kitchen a column, Carroll et al.'s figure beside ours
+    where they report the same kind of agent."""
+    from cogail_envs import get_task
+
+    keys = [k for k, r in results.items() if r.get("field") and len(k.split("/")) == 3]
+    tasks = list(dict.fromkeys(k.split("/")[0] for k in keys))
+    if not tasks:
+        return []
+    kitchens = [getattr(get_task(t).make_env(), "kitchen", t) for t in tasks]
+    head = ["method", *[k.replace("_", " ") for k in kitchens]]
+    rows = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
+    methods = [m for m in FIELD_ORDER if any(k.split("/")[1] == m for k in keys)]
+    for m in methods:
+        cells = [f"`{m}`"]
+        for t in tasks:
+            fd = (results.get(f"{t}/{m}/uniform") or {}).get("field")
+            cell = "-" if not fd else (f"{fd['h_proxy']['both']['reward']['mean']:.1f} +- "
+                                      f"{fd['h_proxy']['both']['reward']['se']:.1f}")
+            pub = (get_task(t).paper.get("h_proxy") or {}).get(FIELD_PUBLISHED.get(m, ""))
+            if pub:
+                cell += f" (Carroll: {(pub[0][0] + pub[1][0]) / 2:.1f})"
+            cells.append(cell)
+        rows.append("| " + " | ".join(cells) + " |")
+    return rows
+
+
+def field_seat_rows(results: dict) -> list[str]:
+    """field.md's long table: every row's figures per seat and partner, and H_proxy's quality."""
+    from cogail_envs import get_task
+
+    rows = ["| task | method | checkpoint | H_proxy, robot P0 | H_proxy, robot P1 | Carroll P0 / P1 | BC train (both) | "
+            "self-play | H_proxy accuracy | H_proxy with itself |", "|" + " --- |" * 10]
+    for key in sorted(k for k, r in results.items() if r.get("field") and len(k.split("/")) == 3):
+        t, m = key.split("/")[:2]
+        fd = results[key]["field"]
+        f = lambda d: f"{d['reward']['mean']:.1f} +- {d['reward']['se']:.1f} ({d['score']['mean']:.2f})"  # noqa: E731
+        pub = (get_task(t).paper.get("h_proxy") or {}).get(FIELD_PUBLISHED.get(m, ""))
+        pubs = f"{pub[0][0]:.1f} / {pub[1][0]:.1f}" if pub else "-"
+        q = fd["proxy_quality"]
+        rows.append(f"| {t} | {m} | {fd['selected']['checkpoint']} | {f(fd['h_proxy']['seat0'])} | "
+                    f"{f(fd['h_proxy']['seat1'])} | {pubs} | {f(fd['bc_train']['both'])} | {f(fd['self_play'])} | "
+                    f"{100 * q['accuracy_heldout']:.1f} % | {f(q['with_itself'])} |")
+    return rows
+
+
+FIELD_NOTE = ("Reward over 400 steps (20 per soup served), mean +- s.e. over every episode (3 seeds x 100 episodes x "
+              "2 seats), each robot at the checkpoint selected with a BC model of the validation pairs, paired with "
+              "H_proxy, a BC model of the test pairs that neither training nor selection reads. In brackets: "
+              "Carroll et al. 2019's figure for the same kind of agent (mean of its two seats; `bc_single` beside "
+              "their BC): their 'Performance with human proxy model' figure, values from "
+              "HumanCompatibleAI/human_aware_rl@2507b93 (human_aware_rl/data/*_runs/*_performance.pickle); their "
+              "game's old dynamics, PPO from scratch for millions of steps with shaped rewards, 5 seeds. Ours: "
+              "JaxMARL's game (the same transitions on every recorded step), every preset from BC of the training "
+              "pairs, 2M env steps per seed, no reward shaping.")
 
 
 def table_axes(results: dict, tasks, methods):
@@ -899,8 +994,11 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 epilog="the README block: --readme FILE rewrites the lines between "
                                        f"{BEGIN} and {END}")
-    p.add_argument("--tasks", default="fetchq")
-    p.add_argument("--methods", default="cogail,ma_infogail,ma_gail,bc_gail,bc_single,diayn")
+    p.add_argument("--tasks", default="fetchq",
+                   help="comma-separated; a task with variants (overcooked) stands for all of them (its five kitchens)")
+    p.add_argument("--methods", default="",
+                   help="comma-separated (default: the paper's six; on a task learned from people, also the field's "
+                        "ppo_bc and ppo_sp)")
     p.add_argument("--mixes", default="uniform", help="fetchq mixtures (D1, D2 give Fig. 3)")
     p.add_argument("--seeds", default="300,400,500")
     p.add_argument("--out", default="results/paper")
@@ -952,7 +1050,8 @@ def main(argv=None) -> int:
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     readme = Path(a.readme) if a.readme else None
-    tasks, methods = a.tasks.split(","), a.methods.split(",")
+    tasks = expand_tasks(a.tasks.split(","))
+    methods = a.methods.split(",") if a.methods else default_methods(tasks)
     seeds = [int(s) for s in a.seeds.split(",")]
     mixes_of = lambda t: a.mixes.split(",") if t == "fetchq" else ["uniform"]  # noqa: E731
     if a.data_only:
@@ -992,6 +1091,8 @@ def main(argv=None) -> int:
     todo, old_rows = [], stale(results) if tasks else {}
     for t in tasks:
         for m in methods:
+            if not a.methods and m not in default_methods([t]):  # the field's baselines: on people's tasks only
+                continue
             for mix in mixes_of(t):
                 key = f"{t}/{m}/{mix}" + (f"/{a.label}" if a.label else "")
                 h = config_hash(resolve_config(t, m, mix, seeds, extra))

@@ -15,6 +15,8 @@ EXPECT = {
     "bc_gail": ({"disc_loss", "policy_loss"}, {"loss_z", "loss_a", "loss_q", "bc_loss"}),
     "diayn": ({"disc_loss", "loss_q", "policy_loss"}, {"loss_z", "loss_a", "bc_loss"}),
     "bc_single": ({"bc_loss"}, {"disc_loss", "policy_loss", "loss_z", "loss_a", "episode_success"}),
+    "ppo_bc": ({"policy_loss"}, {"disc_loss", "loss_z", "loss_a", "loss_r", "loss_q", "bc_loss"}),
+    "ppo_sp": ({"policy_loss"}, {"disc_loss", "loss_z", "loss_a", "loss_r", "loss_q", "bc_loss"}),
 }
 
 
@@ -45,13 +47,13 @@ def test_preset_runs_with_its_terms(method, tiny_cfg, fetchq, expert):
     if method == "bc_single":  # never calls the discriminator, never steps the environment
         assert disc_same
         assert np.array_equal(before.env_state.obs, after.env_state.obs)
-    else:
-        assert not disc_same
-    if method in ("ma_gail", "bc_gail", "bc_single"):
+    else:  # the PPO presets train on the task's reward: no discriminator
+        assert disc_same == method.startswith("ppo_")
+    if method in ("ma_gail", "bc_gail", "bc_single", "ppo_bc", "ppo_sp"):
         assert np.all(np.asarray(after.z) == 0)
     else:
         assert np.any(np.asarray(after.z) != 0)
-    if method == "bc_gail":  # the BC-trained human tower is frozen during GAIL
+    if method in ("bc_gail", "ppo_bc"):  # the BC-trained human tower is frozen during GAIL / PPO
         h0, h1 = before.params["actor"]["params"]["human"], after.params["actor"]["params"]["human"]
         assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(h0), jax.tree.leaves(h1)))
         r0, r1 = before.params["actor"]["params"]["robot"], after.params["actor"]["params"]["robot"]
@@ -67,6 +69,8 @@ TERMS = {
     "bc_gail": {"gail_robot"} | SHARED,
     "bc_single": {"bc_robot"},
     "diayn": {"gail_human", "gail_robot", "diversity"} | SHARED,
+    "ppo_bc": {"task_robot"},
+    "ppo_sp": {"task_human", "task_robot"},
 }
 BC_TERMS = {  # with bc_steps > 0: BC pre-training; psi learns the demonstrations' codes only with L_a
     "cogail": {"bc_human", "bc_robot", "bc_psi"},
@@ -75,6 +79,8 @@ BC_TERMS = {  # with bc_steps > 0: BC pre-training; psi learns the demonstration
     "bc_gail": {"bc_human", "bc_robot"},  # the robot gets the same BC as the other presets' robots
     "bc_single": {"bc_robot"},
     "diayn": {"bc_human", "bc_robot"},
+    "ppo_bc": {"bc_human", "bc_robot"},
+    "ppo_sp": {"bc_human", "bc_robot"},
 }
 
 
@@ -86,7 +92,7 @@ def test_objective_terms_table(method):
     base = TrainConfig(method=method)
     assert losses.objective_terms(base) == TERMS[method]
     assert losses.objective_terms(base.replace(bc_steps=10)) == TERMS[method] | BC_TERMS[method]
-    ppo_bc = set() if method == "bc_single" else {"ppo_bc"}
+    ppo_bc = set() if method in ("bc_single", "ppo_bc", "ppo_sp") else {"ppo_bc"}  # the PPO presets: task reward only
     assert losses.objective_terms(base.replace(bc_coef=1.0)) == TERMS[method] | ppo_bc
     assert losses.objective_terms(base.replace(lambda_r=0.0)) == TERMS[method] - {"L_r"}
     assert losses.objective_terms(base) <= set(losses.TERMS)

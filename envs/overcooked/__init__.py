@@ -27,6 +27,7 @@ def _task(kitchen: str) -> Task:
         play_help="move: arrow keys or WASD (gamepad: left stick)\nSpace: interact (pick up, put down, serve; "
                   "gamepad: A)",
         budgets=config.BUDGETS, splits=config.SPLITS[kitchen], legend=LEGEND,
+        paper={"h_proxy": config.PUBLISHED[kitchen], "source": config.PUBLISHED_SOURCE},
         description=f"Overcooked-AI, {kitchen.replace('_', ' ')}: two cooks make and serve onion soups (JaxMARL), "
                     "learned from the human-human trials of Carroll et al. 2019",
     )

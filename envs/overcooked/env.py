@@ -82,6 +82,11 @@ class Overcooked(CollabEnv):
         self.spec_tag = f"overcooked-v1-{kitchen}" + ("" if start == "trials" else f"-{start}")
         self.init_size = self.geometry.init_size
         self.obs_grid = (self.geometry.height, self.geometry.width, OBS_CHANNELS)
+        # the state as player 1 sees it: JaxMARL puts an agent's own planes first (position 0, orientations 2-5) and
+        # its partner's next (1, 6-9); the kitchen's planes are the same for both
+        channels = np.array([1, 0, 6, 7, 8, 9, 2, 3, 4, 5, *range(10, OBS_CHANNELS)])
+        self.seat_view = tuple(int(i) for i in np.arange(self.observation_size).reshape(self.obs_grid)[..., channels]
+                               .reshape(-1))
         self._game = kt.jaxmarl_game(kitchen, self.max_episode_steps)
 
     @property

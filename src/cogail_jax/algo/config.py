@@ -9,7 +9,10 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-METHODS = ("cogail", "ma_infogail", "ma_gail", "bc_gail", "bc_single", "diayn")
+METHODS = ("cogail", "ma_infogail", "ma_gail", "bc_gail", "bc_single", "diayn", "ppo_bc", "ppo_sp")
+# the paper's six; the field's two baselines on people's data (Carroll et al. 2019) train on the task's own reward
+PAPER_METHODS = METHODS[:6]
+FIELD_METHODS = ("ppo_bc", "ppo_sp")
 OBS_FRAMES = ("world", "both", "object")
 
 
@@ -96,6 +99,10 @@ class TrainConfig:
     # discriminator cannot tell the two apart by the noise alone (scripted demos are near noise-free on some
     # dims, e.g. the gripper's exactly +-1) and its reward has to be about what the agents do (README)
     disc_instance_noise: bool = False
+    # the task's own reward (e.g. 20 per soup served) added with this weight to the discriminator's (our addition, 0 =
+    # the paper: a GAIL preset imitates the people alone); the PPO presets (ppo_bc, ppo_sp) train on the task's reward
+    # alone and ignore it
+    task_reward: float = 0.0
     # strategy code, psi, aux losses
     code_dim: int = 2
     code_grid: int = 5
@@ -148,6 +155,10 @@ class TrainConfig:
         return self.method == "cogail"
 
     @property
+    def task_rl(self) -> bool:  # PPO on the task's own reward, no discriminator (the field's baselines)
+        return self.method in FIELD_METHODS
+
+    @property
     def use_diversity(self) -> bool:  # DIAYN reward log q(z|h) - log p(z) for the co-policy
         return self.method == "diayn"
 
@@ -156,8 +167,8 @@ class TrainConfig:
         return self.method == "bc_single"
 
     @property
-    def freeze_human(self) -> bool:  # BC-GAIL: the human tower is trained by BC only, then frozen
-        return self.method == "bc_gail"
+    def freeze_human(self) -> bool:  # BC-GAIL, PPO_BC: the human tower is trained by BC only, then frozen
+        return self.method in ("bc_gail", "ppo_bc")
 
     def validate(self) -> "TrainConfig":
         if not self.task:
@@ -259,14 +270,14 @@ REMOVED = {"la_codes": "demo", "bc_codes": "demo", "encoder": "mlp"}
 UPDATE_ONLY = ("total_steps", "updates_per_call", "checkpoint_every", "lr", "gamma", "gae_lambda", "clip_eps",
                "ppo_epochs", "num_minibatches", "value_coef", "entropy_coef", "max_grad_norm", "reward_norm",
                "policy_cooldown", "bc_coef", "gp_coef", "disc_lr", "disc_instance_noise", "lambda_z",
-               "diversity_coef", "aux_lr", "inner_updates")
+               "diversity_coef", "aux_lr", "inner_updates", "task_reward")
 
 
 # Of those, the real numbers: the training program takes them as arguments (``hyper_values``), not as constants, so
 # that a run that changes only their values (not which of them are 0, which switches terms off) runs the kept
 # training program of another (``chunk_key``).
 HYPER = ("lr", "gamma", "gae_lambda", "clip_eps", "value_coef", "entropy_coef", "max_grad_norm", "bc_coef", "gp_coef",
-         "disc_lr", "lambda_z", "diversity_coef", "aux_lr")
+         "disc_lr", "lambda_z", "diversity_coef", "aux_lr", "task_reward")
 
 
 def hyper_values(cfg: TrainConfig) -> dict[str, float]:
@@ -317,5 +328,5 @@ def resolve(task: str, budget: str = "paper", fields: dict | None = None) -> Tra
     return TrainConfig.from_dict({**own, **fields, "task": task}).validate()
 
 
-__all__ = ["TrainConfig", "ConfigError", "METHODS", "HYPER", "UPDATE_ONLY", "chunk_key", "field", "field_help",
+__all__ = ["TrainConfig", "ConfigError", "METHODS", "PAPER_METHODS", "FIELD_METHODS", "HYPER", "UPDATE_ONLY", "chunk_key", "field", "field_help",
            "hyper_values", "program_key", "resolve", "task_default"]

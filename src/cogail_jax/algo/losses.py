@@ -211,13 +211,16 @@ class Nets(NamedTuple):
     spec: ActionSpec | None = None  # the action's kinds (None: every agent continuous)
 
 
-TERMS = ("gail_human", "gail_robot", "L_z", "L_a", "L_r", "diversity", "ppo_bc", "bc_human", "bc_robot", "bc_psi")
+TERMS = ("gail_human", "gail_robot", "task_human", "task_robot", "L_z", "L_a", "L_r", "diversity", "ppo_bc", "bc_human",
+         "bc_robot", "bc_psi")
 
 
 def objective_terms(cfg: TrainConfig) -> frozenset[str]:
     """Exactly which terms a preset optimises:
 
     * ``gail_human`` / ``gail_robot``: PPO on the discriminator's reward moves the human / robot actions
+    * ``task_human`` / ``task_robot``: PPO on the task's own reward moves them (the PPO presets; in a GAIL preset,
+      added to the discriminator's with ``task_reward`` > 0)
     * ``L_z``: psi and the co-policy on code reconstruction from generated data (InfoGAIL); without L_a
       psi's part in the aux step, the co-policy's in the PPO step (``lz_in_ppo``)
     * ``L_a``: behaviour reconstruction of the expert human actions through psi's code (Co-GAIL); the only
@@ -231,9 +234,14 @@ def objective_terms(cfg: TrainConfig) -> frozenset[str]:
     """
     if cfg.bc_only:
         return frozenset({"bc_robot"})
+    if cfg.task_rl:  # the field's baselines: PPO on the task's reward, BC pre-training, nothing else
+        t = {"task_robot"} | (set() if cfg.freeze_human else {"task_human"})
+        return frozenset(t | ({"bc_human", "bc_robot"} if cfg.bc_steps > 0 else set()))
     t = {"gail_robot"}
     if not cfg.freeze_human:
         t.add("gail_human")
+    if cfg.task_reward > 0:
+        t |= {"task_robot"} | (set() if cfg.freeze_human else {"task_human"})
     if cfg.use_lz:
         t.add("L_z")
     if cfg.use_la:
@@ -359,15 +367,17 @@ PAPER_WORDING = {  # the paper's section 5 ("Baselines"), one line each
                "against the learned human.",
     "bc_single": "Behaviour cloning of the robot policy only; the human is replayed open-loop.",
     "diayn": "A diversity reward encourages the human policy to be as diverse as possible.",
+    "ppo_bc": "(Carroll et al. 2019) PPO on the task's reward, the human a frozen BC model of the training people.",
+    "ppo_sp": "(Carroll et al. 2019) PPO self-play on the task's reward: both agents trained by PPO.",
 }
 
 
 def preset_table_markdown() -> str:
     """The method presets and the terms each optimises (from ``objective_terms``), as a Markdown table."""
     yes = lambda b: "yes" if b else "-"  # noqa: E731
-    rows = ["| preset | paper (section 5) | GAIL human | GAIL robot | L_z | L_a | L_r | DIAYN | BC pre-training "
-            "| PPO+BC | psi learns from |",
-            "|---|---|---|---|---|---|---|---|---|---|---|"]
+    rows = ["| preset | paper (section 5) | GAIL human | GAIL robot | task reward | L_z | L_a | L_r | DIAYN | "
+            "BC pre-training | PPO+BC | psi learns from |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for m in METHODS:
         cfg = TrainConfig(method=m, bc_steps=1, bc_coef=1.0)
         t = objective_terms(cfg)
@@ -375,7 +385,8 @@ def preset_table_markdown() -> str:
         psi = ", ".join(n for k, n in (("L_z", "L_z"), ("L_a", "L_a"), ("bc_psi", "BC"),
                                        ("diversity", "q fit (generated data)")) if k in t) or "- (no psi)"
         name = f"`{m}`" + (" (BC only)" if cfg.bc_only else "")
-        rows.append(f"| {name} | {PAPER_WORDING[m]} | {yes('gail_human' in t)} | {yes('gail_robot' in t)} | "
+        task = ", ".join(a for a, k in (("human", "task_human"), ("robot", "task_robot")) if k in t) or "-"
+        rows.append(f"| {name} | {PAPER_WORDING[m]} | {yes('gail_human' in t)} | {yes('gail_robot' in t)} | {task} | "
                     f"{yes('L_z' in t)} | {yes('L_a' in t)} | {yes('L_r' in t)} | {yes('diversity' in t)} | {bc} | "
                     f"{yes('ppo_bc' in t)} | {psi} |")
     return "\n".join(rows) + (
@@ -383,4 +394,7 @@ def preset_table_markdown() -> str:
         "additions, shared by every preset that has the agent they train (shown switched on). Without L_a, psi "
         "learns nothing from expert actions: L_r and PPO+BC act on each demonstration's code from BC pre-training "
         "(`losses.expert_code`), and L_z's co-policy part is in the PPO step (`losses.lz_in_ppo`); without a strategy code "
-        "(`ma_gail`, `bc_gail`, `bc_single`) the co-policy sees z = 0. `bc_gail`'s human is frozen after BC.")
+        "(`ma_gail`, `bc_gail`, `bc_single`) the co-policy sees z = 0. `bc_gail`'s human is frozen after BC. The "
+        "field's baselines `ppo_bc` and `ppo_sp` (for tasks learned from people) optimise the task's own reward with "
+        "PPO from BC pre-training, with no discriminator, psi or L_r (`ppo_bc`'s human frozen after BC); "
+        "`--set task_reward=W` adds W x the task's reward to a GAIL preset's discriminator reward.")

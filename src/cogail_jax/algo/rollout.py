@@ -94,7 +94,8 @@ def rollout(cfg: TrainConfig, env, actor, critic, params, norm, carry: Carry, ke
               "first": c.env_state.info["t"] == 0, "action": a, "act": act,
               "logp": actions.log_prob(spec, mean, log_std, a), "value": value, "done": done.astype(jnp.float32),
               "truncation": nxt.info.get("truncation", zero) * done, "next_obs": nxt.obs,
-              "success": nxt.metrics["success"] * done, "env_failed": nxt.info.get("failed", zero)}
+              "success": nxt.metrics["success"] * done, "env_failed": nxt.info.get("failed", zero),
+              "task_reward": nxt.reward}
         z_new, counter = new_codes(cfg, c.code_counter, done, k_code, stride=e)
 
         def pick(r, x):

@@ -301,6 +301,8 @@ def inner_updates(ctx: Context, state: TrainState, flat, expert, key):
                  "prev_obs": normalize(norm, gen["hist"][:, -2]), "first": gen["first"], "z": gen["z"],
                  "prev_ah": gen["prev_ah"]}
         new, aux_opt, aux_m = aux_step(ctx, params, aux_opt, gen_b, exp_b)
+        if ctx.cfg.task_rl:  # no discriminator
+            return (new, aux_opt, disc_opt), aux_m
         # the discriminator's instance noise is that of the co-policy that generated `gen`
         disc, disc_opt, dm = disc_step(ctx, params, disc_opt, gen_b, exp_b, k_gp)
         return ({**new, "disc": disc}, aux_opt, disc_opt), {**dm, **aux_m}
@@ -331,10 +333,16 @@ def normalize_returns(cfg: TrainConfig, gamma, ret_rms, ret_acc, r, done):
 
 
 def rewards(ctx: Context, state: TrainState, traj):
-    """The discriminator's reward (+ DIAYN's diversity reward); returns ``(state, normalised, raw)``."""
+    """The discriminator's reward (+ DIAYN's diversity reward, + ``task_reward`` x the task's); the PPO presets' the
+    task's alone; returns ``(state, normalised, raw)``."""
     cfg, nets = ctx.cfg, ctx.nets
-    x = jnp.concatenate([normalize(state.norm, traj["obs"]), traj["act"]], -1)
-    r = losses.discriminator_reward(nets.disc(state.params["disc"], x), nets.disc_kind)
+    if cfg.task_rl:
+        r = traj["task_reward"]
+    else:
+        x = jnp.concatenate([normalize(state.norm, traj["obs"]), traj["act"]], -1)
+        r = losses.discriminator_reward(nets.disc(state.params["disc"], x), nets.disc_kind)
+        if cfg.task_reward > 0:
+            r = r + ctx.hp["task_reward"] * traj["task_reward"]
     if "diversity" in losses.objective_terms(cfg):
         h = jnp.concatenate([history_input(state.norm, traj["hist"]), traj["prev_ah"]], -1)
         r = r + ctx.hp["diversity_coef"] * losses.diversity_reward(nets.psi, state.params, h, traj["z"])
@@ -366,7 +374,7 @@ def ppo_grad(ctx: Context, params, batch, exp_b, moves):
     (_, m), g = jax.value_and_grad(
         lambda p: losses.ppo_objective(ctx.cfg, ctx.nets, {**params, **p}, batch, exp_b, ctx.hp), has_aux=True)(sub)
     g_actor = jax.tree.map(lambda x: x * moves, g["actor"])
-    if "gail_human" not in losses.objective_terms(ctx.cfg):
+    if ctx.cfg.freeze_human:
         g_actor = mask_frozen_human(ctx.nets.human_size, g_actor)
     return {**g, "actor": g_actor}, m
 

@@ -18,6 +18,7 @@ from ..runtime import checkpoint as ckpt
 from ..data import io as data
 from ..data import manifest
 from ..data import sets as data_sets
+from ..eval import field as field_eval
 from ..eval import rollouts
 from ..eval import protocol
 from ..eval import coplay as coplay_eval
@@ -294,6 +295,9 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
         if coplay:
             with part_clock("coplay"):
                 res["coplay"] = _coplay(s, store, res, memory, coplay_episodes, inp.coplay)
+            if field_eval.supported(s.env):  # a task learned from people: the field's protocol (H_proxy, both seats)
+                with part_clock("field"):
+                    res["field"] = field_eval.evaluate(s, store, steps, memory)
     with clock("write"):
         _write_eval_outputs(run_dir, s, res, at, lat, sets, robustness)
     if prepared is not None:

@@ -183,6 +183,8 @@ def reported_checkpoints(res: dict) -> list[int]:
     for key in ("selected", "last"):
         if isinstance(res.get(key), dict):
             out.add(int(res[key]["checkpoint"]))
+    if isinstance((res.get("field") or {}).get("selected"), dict):  # the field's protocol's own selection
+        out.add(int(res["field"]["selected"]["checkpoint"]))
     for col in ("replay", "interpolation"):
         pp = (res.get("paper_protocol") or {}).get(col)
         if isinstance(pp, dict):
@@ -327,6 +329,10 @@ def results_markdown(res: dict) -> str:
         if res.get("train_varied"):
             lines += ["", f"The training set held {res['train_varied']} varied-human episodes of each variation "
                       "(train_varied): the robust-* sets are kinds of person the robot was trained on, not new ones."]
+    if res.get("field"):
+        from .field import markdown as field_markdown
+
+        lines += field_markdown(res["field"])
     if res.get("coplay"):
         from .coplay import markdown as coplay_markdown
 

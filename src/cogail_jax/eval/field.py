@@ -1,0 +1,281 @@
+"""The field's protocol for a task learned from people (Carroll et al., NeurIPS 2019): the robot paired with H_proxy.
+
+H_proxy is behaviour cloning of the TEST pairs' people, in both seats (each player's actions on the state as that
+player sees it), so it stands for a person the robot has never met: neither training nor checkpoint selection reads
+the test split. The robot plays both seats (as the trials' player 1, the human agent's partner as it was trained,
+and as player 0, reading the state as its partner in seat 1 sees it: the env's ``seat_view``), 400-step episodes, at
+least 100 per seed and seat on an accelerator; reward (the task's, 20 per soup on Overcooked) and the score
+(soups) are reported as mean and standard error over every episode, with each seed's mean.
+
+* **Selection**: every checkpoint plays both seats with a BC model of the VALIDATION pairs; the checkpoint with the
+  highest mean reward over seeds and seats is selected (ties: the later one).
+* **At the selected checkpoint**: H_proxy (both seats, and their mean), the BC model of the TRAINING pairs
+  (``bc_train``: what PPO_BC trains with), and self-play (two copies of the robot, one in each seat).
+* **H_proxy's own quality**: its action accuracy on held-out test episodes (a copy fitted on the other 80 % of the
+  test episodes), and its reward with itself and with that copy of itself.
+
+Every BC model is an MLP (``coplay.PROXY_HIDDEN``) on the state as its player sees it and its change over the last 1
+and 3 steps, fitted by cross-entropy, drawing its choices from its categorical (as the field's BC agents do); all
+of them from fixed keys, so the same data give the same models. One compiled program per pair of agent kinds
+(robot or BC model in each seat), the seeds vmapped.
+"""
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..algo import actions
+from . import coplay
+
+FIELD_SEED = 1357  # episode e of a call starts from fold_in(PRNGKey(FIELD_SEED + call's salt), e)
+HOLDOUT = 0.2  # the share of the test episodes H_proxy's accuracy is measured on (by a copy fitted on the rest)
+SEATS = (0, 1)
+
+
+def supported(env) -> bool:
+    """Whether the field's protocol applies: a task with discrete agents of the same actions and a ``seat_view``."""
+    spec = actions.spec_of(env)
+    return bool(len(getattr(env, "seat_view", ()) or ()) and spec.human_discrete and spec.robot_discrete
+                and spec.human_size == spec.robot_size)
+
+
+def sizes() -> dict:
+    """Episodes per seed and seat (at the selected checkpoint, and per checkpoint for selection) and BC updates:
+    the field's counts on an accelerator, tiny ones on a CPU."""
+    if jax.default_backend() == "cpu":
+        return {"episodes": 4, "select_episodes": 2, "bc_steps": 300}
+    return {"episodes": 100, "select_episodes": 32, "bc_steps": 4000}
+
+
+# ------------------------------------------------------------------------------------------------ BC models
+def seat_samples(env, obs, ah, ar, length) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Both players' steps of a split as BC samples: player 0's actions ``ah`` on the state as recorded, player 1's
+    ``ar`` on the state as it sees it (``seat_view``). Returns the inputs (``coplay.proxy_inputs``), the one-hot
+    targets and each sample's episode."""
+    obs, length = np.asarray(obs, np.float32), np.asarray(length)
+    H = max(coplay.PROXY_LAGS)
+    xs, ys, eps = [], [], []
+    valid = np.arange(obs.shape[1])[None] < length[:, None]
+    for view, act in ((obs, ah), (obs[..., np.asarray(env.seat_view)], ar)):
+        padded = np.concatenate([np.repeat(view[:, :1], H, 1), view], 1)
+        hist = np.stack([padded[:, H - j:H - j + view.shape[1]] for j in range(H, -1, -1)], 2)
+        xs.append(np.asarray(coplay.proxy_inputs(jnp.asarray(hist)))[valid])
+        ys.append(np.asarray(act, np.float32)[valid])
+        eps.append(np.broadcast_to(np.arange(len(length))[:, None], valid.shape)[valid])
+    return np.concatenate(xs), np.concatenate(ys), np.concatenate(eps)
+
+
+def fit_bc(x: np.ndarray, y: np.ndarray, steps: int, seed: int) -> coplay.Proxy:
+    """A BC model of samples ``(x, y)`` (cross-entropy, full-batch Adam, ``steps`` updates from ``PRNGKey(seed)``)."""
+    import optax
+
+    mean, std = x.mean(0), np.maximum(x.std(0), 1e-3)
+    layers = coplay._init_layers(jax.random.PRNGKey(seed), (x.shape[1], *coplay.PROXY_HIDDEN, y.shape[1]))
+    opt = optax.adam(coplay.PROXY_LR)
+
+    @jax.jit
+    def fit(layers, x, y):
+        def loss_fn(layers):
+            logits = coplay._mlp(coplay.Proxy(layers, mean, std), x, squash=False)
+            return -jnp.mean(jnp.sum(y * jax.nn.log_softmax(logits, -1), -1))
+
+        def body(carry, _):
+            layers, st = carry
+            g = jax.grad(loss_fn)(layers)
+            up, st = opt.update(g, st, layers)
+            return (optax.apply_updates(layers, up), st), None
+
+        (layers, _), _ = jax.lax.scan(body, (layers, opt.init(layers)), None, length=steps)
+        return layers
+
+    return coplay.Proxy(fit(layers, jnp.asarray(x), jnp.asarray(y)), jnp.asarray(mean), jnp.asarray(std))
+
+
+def accuracy(model: coplay.Proxy, x: np.ndarray, y: np.ndarray) -> float:
+    """The share of samples whose most likely choice is the person's."""
+    logits = np.asarray(coplay._mlp(model, jnp.asarray(x), squash=False))
+    return float(np.mean(logits.argmax(-1) == y.argmax(-1)))
+
+
+def split_arrays(path, env) -> dict:
+    from ..data import io as data
+
+    d = data.load_demos(path, env)
+    return {"obs": d.obs, "ah": d.actions_human, "ar": d.actions_robot, "length": d.length}
+
+
+# ------------------------------------------------------------------------------------------------ the program
+def make_play(env, cfg, nets, kinds: tuple[str, str]):
+    """Jitted ``play(agent0, agent1, keys) -> {"reward", "score"}`` (each (S, E)): E episodes of the task's time
+    limit from the task's start (episode e's from ``keys[e]``), each seat's agent a learned robot (``{"params",
+    "norm"}`` with a leading seed axis S, vmapped) or a BC model (``coplay.Proxy``, the same for every seed), as
+    ``kinds`` says ("robot" or "bc"). Player 0's action is the env's human action, player 1's its robot action."""
+    from .rollouts import make_robot_step
+
+    perm = jnp.asarray(np.asarray(env.seat_view))
+    spec = actions.spec_of(env)
+    Ah, T = env.human_action_size, env.max_episode_steps
+    K = cfg.history if cfg is not None else 0
+    H = max(K, max(coplay.PROXY_LAGS))
+    if "robot" in kinds:
+        psi_code, _ = make_robot_step(cfg, env, nets)
+        actor = nets["actor"].apply
+
+    def robot_act(agent, view_hist, prev_partner, key):  # one episode: the robot reads its partner's view
+        z = psi_code(agent["params"], agent["norm"], view_hist[-(K + 1):], prev_partner)
+        obs = (view_hist[-1] - agent["norm"]["mean"]) / agent["norm"]["std"]
+        mean, _ = actor(agent["params"]["actor"], obs, z)
+        return actions.agent_act(True, mean[Ah:], key)
+
+    def one_seed(a0, a1, keys):
+        E = keys.shape[0]
+        state = jax.vmap(lambda k: env.reset_from(env.sample_init(k)))(keys)
+        hist = jnp.repeat(state.obs[:, None], H + 1, 1)
+
+        def body(carry, t):
+            state, hist, prev, ret = carry
+            step_keys = jax.vmap(lambda k: jax.random.fold_in(k, t))(keys)
+            out = []
+            for seat, (kind, agent) in enumerate(zip(kinds, (a0, a1))):
+                k = jax.vmap(lambda kk: jax.random.fold_in(kk, seat + 1))(step_keys)
+                if kind == "robot":  # the partner's view: the recorded state for seat 1, swapped for seat 0
+                    view = hist if seat == 1 else hist[..., perm]
+                    a = jax.vmap(robot_act, in_axes=(None, 0, 0, 0))(agent, view, prev[:, 1 - seat], k)
+                else:  # its own view
+                    view = hist if seat == 0 else hist[..., perm]
+                    a = jax.vmap(lambda h, kk: coplay.proxy_action(agent, h, True, kk))(
+                        view[:, -(max(coplay.PROXY_LAGS) + 1):], k)
+                out.append(a)
+            nxt = jax.vmap(env.step)(state, jnp.concatenate(out, -1))
+            hist = jnp.concatenate([hist[:, 1:], nxt.obs[:, None]], 1)
+            return (nxt, hist, jnp.stack(out, 1), ret + nxt.reward), None
+
+        prev = jnp.zeros((E, 2, Ah), jnp.float32)
+        (state, _, _, ret), _ = jax.lax.scan(body, (state, hist, prev, jnp.zeros((E,), jnp.float32)),
+                                             jnp.arange(T))
+        score = state.metrics[env.score_metric] if env.score_metric else state.metrics["success"]
+        return {"reward": ret, "score": score}
+
+    axes = tuple(0 if k == "robot" else None for k in kinds)
+    if all(a is None for a in axes):  # no seed axis: one "seed"
+        return jax.jit(lambda a0, a1, keys: jax.tree.map(lambda x: x[None], one_seed(a0, a1, keys)))
+    return jax.jit(jax.vmap(one_seed, in_axes=(*axes, None)))
+
+
+def episode_keys(n: int, salt: int) -> jax.Array:
+    return jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(FIELD_SEED + salt), i))(jnp.arange(n))
+
+
+def stats(out: dict, seeds) -> dict:
+    """Mean, standard error (over every episode) and per-seed means of ``reward`` and ``score`` ((S, E) arrays)."""
+    res = {}
+    for k in ("reward", "score"):
+        x = np.asarray(out[k], np.float64)
+        res[k] = {"mean": float(x.mean()), "se": float(x.std(ddof=1) / math.sqrt(x.size)) if x.size > 1 else 0.0,
+                  "per_seed": {str(s): float(v) for s, v in zip(seeds, x.mean(1))}}
+    res["episodes"] = int(np.asarray(out["reward"]).size)
+    return res
+
+
+def _pool(a: dict, b: dict, seeds) -> dict:
+    return stats({k: np.concatenate([np.asarray(a[k]), np.asarray(b[k])], 1) for k in ("reward", "score")}, seeds)
+
+
+class Field:
+    """The programs and BC models of one run's field evaluation (see the module docstring)."""
+
+    def __init__(self, s, n: dict | None = None):
+        self.s, self.n = s, dict(n or sizes())
+        self.programs: dict = {}
+        env = s.env
+        from ..data import sets
+
+        files = {**{k: sets.split_path(s.cfg, k) for k in ("train",) if k not in (s.files or {})}, **(s.files or {})}
+        splits = {k: split_arrays(files[k], env) for k in ("train", "validation", "test")}
+        steps = self.n["bc_steps"]
+        xs = {k: seat_samples(env, v["obs"], v["ah"], v["ar"], v["length"]) for k, v in splits.items()}
+        self.h_proxy = fit_bc(*xs["test"][:2], steps, 0)
+        self.bc_train = fit_bc(*xs["train"][:2], steps, 0)
+        self.bc_validation = fit_bc(*xs["validation"][:2], steps, 0)
+        x, y, ep = xs["test"]
+        n_ep = int(ep.max()) + 1
+        held = np.arange(n_ep) % int(round(1 / HOLDOUT)) == int(round(1 / HOLDOUT)) - 1  # every 5th episode
+        self.copy = fit_bc(x[~held[ep]], y[~held[ep]], steps, 1)
+        self.quality = {"accuracy_heldout": accuracy(self.copy, x[held[ep]], y[held[ep]]),
+                        "heldout_episodes": int(held.sum()), "samples": int(len(x)),
+                        "accuracy_train_samples": accuracy(self.h_proxy, x, y)}
+
+    def play(self, a0, a1, kinds: tuple[str, str], episodes: int, salt: int) -> dict:
+        if kinds not in self.programs:
+            self.programs[kinds] = make_play(self.s.env, self.s.cfg, self.s.nets, kinds)
+        out = self.programs[kinds](a0, a1, episode_keys(episodes, salt))
+        return jax.tree.map(np.asarray, jax.device_get(out))
+
+    def with_partner(self, robot: dict, partner, episodes: int, salt: int) -> dict:
+        """The robot in each seat with a BC ``partner``: {"seat0", "seat1", "both"} stats (seat k: the robot's)."""
+        seeds = self.s.cfg.seeds
+        r0 = self.play(robot, partner, ("robot", "bc"), episodes, salt)
+        r1 = self.play(partner, robot, ("bc", "robot"), episodes, salt)
+        return {"seat0": stats(r0, seeds), "seat1": stats(r1, seeds), "both": _pool(r0, r1, seeds)}
+
+    def proxy_quality(self) -> dict:
+        one = (0,)
+        e = self.n["episodes"]
+        itself = self.play(self.h_proxy, self.h_proxy, ("bc", "bc"), e, 7)
+        copy = self.play(self.h_proxy, self.copy, ("bc", "bc"), e, 7)
+        return {**self.quality, "with_itself": stats(itself, one), "with_copy": stats(copy, one)}
+
+
+def evaluate(s, store, steps: list[int], memory: dict | None = None, n: dict | None = None) -> dict:
+    """results.json's ``field`` for a run's set-up ``s`` (its splits' files in ``s.files``) and policies ``store``:
+    selection over ``steps`` with the validation pairs' BC model, then H_proxy, the training pairs' BC model and
+    self-play at the selected checkpoint, and H_proxy's quality."""
+    from ..apps.eval_runner import _checkpoint_params
+
+    f = Field(s, n)
+    per_ckpt = {}
+    for st in steps:
+        robot = _checkpoint_params(store, memory, st)
+        r = f.with_partner(robot, f.bc_validation, f.n["select_episodes"], 1)
+        per_ckpt[int(st)] = r["both"]["reward"]["mean"]
+    best = max(per_ckpt.values())
+    chosen = max(st for st, v in per_ckpt.items() if v == best)
+    robot = _checkpoint_params(store, memory, chosen)
+    seeds = s.cfg.seeds
+    sp = f.play(robot, robot, ("robot", "robot"), f.n["episodes"], 3)
+    return {
+        "protocol": {"episodes_per_seed_and_seat": f.n["episodes"], "selection_episodes": f.n["select_episodes"],
+                     "bc_steps": f.n["bc_steps"], "seed": FIELD_SEED, "score": s.env.score_metric or "success",
+                     "horizon": s.env.max_episode_steps},
+        "selected": {"checkpoint": int(chosen), "validation_reward": per_ckpt},
+        "h_proxy": f.with_partner(robot, f.h_proxy, f.n["episodes"], 0),
+        "bc_train": f.with_partner(robot, f.bc_train, f.n["episodes"], 2),
+        "self_play": stats(sp, seeds),
+        "proxy_quality": f.proxy_quality(),
+    }
+
+
+def markdown(fd: dict) -> list[str]:
+    """results.md's section of the field's protocol."""
+    def cell(d):
+        return f"{d['reward']['mean']:.1f} +- {d['reward']['se']:.1f} ({d['score']['mean']:.2f} +- {d['score']['se']:.2f})"
+
+    p, q = fd["protocol"], fd["proxy_quality"]
+    lines = ["", f"The field's protocol (Carroll et al. 2019): reward over {p['horizon']} steps, mean +- s.e. over "
+             f"episodes ({p['score']} in brackets), {p['episodes_per_seed_and_seat']} episodes per seed and seat, at "
+             f"checkpoint {fd['selected']['checkpoint']} (selected with a BC model of the validation pairs):", "",
+             "| partner | robot as player 0 | robot as player 1 | both seats |", "| --- | --- | --- | --- |"]
+    for name, key in (("H_proxy (BC of the test pairs)", "h_proxy"), ("BC of the training pairs", "bc_train")):
+        d = fd[key]
+        lines.append(f"| {name} | {cell(d['seat0'])} | {cell(d['seat1'])} | {cell(d['both'])} |")
+    lines.append(f"| itself (self-play) | - | - | {cell(fd['self_play'])} |")
+    lines += ["", f"H_proxy: action accuracy {100 * q['accuracy_heldout']:.1f} % on {q['heldout_episodes']} held-out "
+              f"test episodes (a copy fitted on the others); with itself {cell(q['with_itself'])}, with that copy "
+              f"{cell(q['with_copy'])}."]
+    return lines
+
+
+__all__ = ["supported", "sizes", "evaluate", "markdown", "Field", "make_play", "seat_samples", "fit_bc", "stats"]

@@ -97,6 +97,9 @@ def validation_robustness_sets(task, mix) -> dict:
     from cogail_jax.apps.eval_runner import PATIENT
 
     env = cogail_envs.make_env(task)  # made here, explicitly: the evaluation itself only reads data
+    team = cogail_envs.get_task(task).team
+    if team is None or not team.variations:  # no scripted human to vary (a task learned from people)
+        return {}
     sets = {"val-" + name: str(path)
             for name, path in robustness.ensure_robustness_sets(env, mix=mix, split="validation").items()}
     if env.has_patient_replay:  # and with a patient human, as the test's (choices on the patient protocol)

@@ -50,6 +50,11 @@ def fns(env):
                 rollout=jax.jit(rollout))
 
 
+def _seated(game, seat: int = 0):
+    """An env init vector: a game state (kitchen's layout) with the human seated as player ``seat``."""
+    return jnp.append(jnp.asarray(game, jnp.float32), float(seat))
+
+
 def _action(h: int, r: int) -> jnp.ndarray:
     return jnp.asarray(one_hot_actions([h, r]).reshape(-1))
 
@@ -58,8 +63,8 @@ def _action(h: int, r: int) -> jnp.ndarray:
 def test_reset_step_shapes_and_one_hot_actions(env, fns):
     assert env.obs_grid == (4, 5, 26) and env.observation_size == 520 and env.action_size == 12
     assert env.human_action_discrete and env.robot_action_discrete and env.score_metric == "soups"
-    assert env.init_size == 8 + 2 * 1 + 9  # cramped room: one pot, nine counter cells
-    s = fns["reset_from"](kt.start_init(env.geometry, jnp.array([0, 0])))
+    assert env.init_size == 8 + 2 * 1 + 9 + 1  # cramped room: one pot, nine counter cells, and the human's seat
+    s = fns["reset_from"](_seated(kt.start_init(env.geometry, jnp.array([0, 0]))))
     assert s.obs.shape == (520,) and s.obs.dtype == jnp.float32
     np.testing.assert_array_equal(np.asarray(s.obs).reshape(env.obs_grid)[..., 0].nonzero(), ([2], [1]))  # human
     # the human (at (1, 2)) moves right, the robot interacts with nothing; argmax of any vector acts alike
@@ -69,7 +74,7 @@ def test_reset_step_shapes_and_one_hot_actions(env, fns):
     assert int(s1.pipeline_state.agent_dir_idx[0]) == 2
     for x, y in zip(jax.tree.leaves(s1), jax.tree.leaves(s2)):
         np.testing.assert_array_equal(x, y)
-    np.testing.assert_array_equal(s1.obs, env._obs(s1.pipeline_state))  # agent_0's view of the new state
+    np.testing.assert_array_equal(s1.obs, env._obs(env._game.get_obs(s1.pipeline_state), 0))  # agent_0's view
     assert s1.info["t"].dtype == jnp.int32 and int(s1.info["t"]) == 1
     assert set(s1.metrics) == {"success", "soups", "onions_h", "onions_r", "plates_h", "plates_r", "dished_h",
                                "dished_r", "served_h", "served_r"}
@@ -87,14 +92,16 @@ def test_episodes_end_at_400_steps_as_truncations(fns):
 
 def test_start_cells_and_the_jaxmarl_start(env):
     init = np.asarray(env.sample_init(jax.random.PRNGKey(0)))
-    assert init[:4].tolist() == [1, 2, 3, 1] and np.all(init[8:] == [0, 20, *[0] * 9])
+    assert init[:4].tolist() == [1, 2, 3, 1] and np.all(init[8:-1] == [0, 20, *[0] * 9])
+    seats = np.asarray(jax.vmap(env.sample_init)(jax.random.split(jax.random.PRNGKey(1), 64)))[:, -1]
+    assert set(seats.tolist()) == {0.0, 1.0}  # the human drawn into either seat
     # start="jaxmarl" starts as JaxMARL's own reset does, state for state
     other = Overcooked(start="jaxmarl")
     assert other.version != env.version
     key = jax.random.PRNGKey(5)
     _, ref = jax.jit(other._game.reset)(key)
     dirs = np.asarray(ref.agent_dir_idx)
-    ours = other.reset_from(kt.start_init(other.geometry, dirs, other.geometry.jaxmarl_start)).pipeline_state
+    ours = other.reset_from(_seated(kt.start_init(other.geometry, dirs, other.geometry.jaxmarl_start))).pipeline_state
     for name in ("agent_pos", "agent_dir", "agent_dir_idx", "agent_inv", "goal_pos", "pot_pos", "wall_map",
                  "maze_map"):
         a, b = np.asarray(getattr(ours, name)), np.asarray(getattr(ref, name))
@@ -122,7 +129,7 @@ def test_classify_strategy_thresholds(env):
 
 
 def test_render_draws_both_agents(env, fns):
-    s = fns["reset_from"](kt.start_init(env.geometry, jnp.array([1, 2])))
+    s = fns["reset_from"](_seated(kt.start_init(env.geometry, jnp.array([1, 2]))))
     img = env.render(s, 320, 240)
     assert img.shape == (240, 320, 3) and img.dtype == np.uint8
     px = img.reshape(-1, 3).astype(int)
@@ -137,7 +144,7 @@ def test_tasks_and_variants():
     assert names == {f"overcooked_{k}" for k in kt.KITCHENS if k != "cramped_room"}
     task = get_task("overcooked_forced_coordination")
     assert task.team is None and task.recorded is tr.recorded and task.config("quick")["total_steps"] == 256_000
-    assert task.split_size("train") == 12 and get_task("overcooked").split_size("test") == 24
+    assert task.split_size("train") == 24 and get_task("overcooked").split_size("test") == 48
     with pytest.raises(ValueError, match="unknown kitchen"):
         Overcooked("kitchen_sink")
 
@@ -157,6 +164,7 @@ def test_open_loop_replay_matches_the_recording(kitchen):
 def test_reset_from_restores_recorded_states(env, fns):
     inits = np.concatenate([t.inits[::3] for t in tr.trials("cramped_room", "train")[:2]])
     assert len(np.unique(inits, axis=0)) > 100
+    inits = np.concatenate([inits, (np.arange(len(inits)) % 2)[:, None]], 1).astype(np.float32)  # either seat
     np.testing.assert_array_equal(np.asarray(fns["round_trip"](jnp.asarray(inits))), inits)
 
 
@@ -192,11 +200,29 @@ def test_recorded_splits(env):
     # the replayed episodes deliver what the people delivered in each 400-step window
     trial = {t.pair: t for t in tr.split_trials("cramped_room", "validation")}
     seen: dict[int, int] = {}
-    for i in range(n):
-        start = 400 * seen.setdefault(int(r["pair"][i]), 0)
+    for i in range(n):  # each window twice: the human as player 0, then as player 1
+        start = 400 * (seen.setdefault(int(r["pair"][i]), 0) // 2)
         seen[int(r["pair"][i])] += 1
         got = trial[int(r["pair"][i])].deliveries[start:start + r["length"][i]].sum()
         assert r["final_metrics"]["soups"][i] == got
     assert r["success"].shape == (n,) and np.all(r["success"] == (r["final_metrics"]["soups"] > 0))
     assert r["source"]["file"].endswith("clean_train_trials.pickle") and len(r["source"]["sha256"]) == 64
     assert r["source"]["kitchen"] == "cramped_room" and r["source"]["split"] == "validation"
+
+
+@needs_trials
+def test_each_recorded_window_in_both_seats(env):
+    """Each 400-step window comes twice: the human agent as the trial's player 0, then as its player 1; the second
+    sees the state as player 1 does (``seat_view``), its agents' actions and jobs swapped."""
+    r = tr.recorded(env, "validation")
+    perm = np.asarray(env.seat_view)
+    a, b = slice(0, None, 2), slice(1, None, 2)
+    assert np.all(r["init"][a, -1] == 0) and np.all(r["init"][b, -1] == 1)
+    np.testing.assert_array_equal(r["init"][a, :-1], r["init"][b, :-1])
+    np.testing.assert_array_equal(r["obs"][b], r["obs"][a][..., perm])
+    np.testing.assert_array_equal(r["actions_human"][b], r["actions_robot"][a])
+    m = r["final_metrics"]
+    for job in ("onions", "plates", "dished", "served"):
+        np.testing.assert_array_equal(m[f"{job}_h"][b], m[f"{job}_r"][a])
+    mirror = {0: 0, 1: 2, 2: 1, 3: 3, 4: 5, 5: 4}  # who cooks and who serves, swapped
+    assert [mirror[int(x)] for x in r["strategy"][a]] == r["strategy"][b].tolist()

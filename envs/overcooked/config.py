@@ -13,13 +13,14 @@ def default_config() -> dict:
 
 # named overrides of default_config() (`cogail train --budget NAME`, `make train BUDGET=NAME`)
 BUDGETS = {"quick": {"total_steps": 256_000}}
-# 400-step episodes per split of each kitchen's trials (docs/overcooked.md, "Datasets"; the files decide)
+# 400-step episodes per split of each kitchen's trials, each window in both seats (docs/overcooked.md, "Datasets";
+# the files decide)
 SPLITS = {
-    "cramped_room": {"train": 18, "validation": 6, "test": 24},
-    "asymmetric_advantages": {"train": 21, "validation": 6, "test": 24},
-    "coordination_ring": {"train": 18, "validation": 6, "test": 24},
-    "forced_coordination": {"train": 12, "validation": 6, "test": 18},
-    "counter_circuit": {"train": 18, "validation": 6, "test": 21},
+    "cramped_room": {"train": 36, "validation": 12, "test": 48},
+    "asymmetric_advantages": {"train": 42, "validation": 12, "test": 48},
+    "coordination_ring": {"train": 36, "validation": 12, "test": 48},
+    "forced_coordination": {"train": 24, "validation": 12, "test": 36},
+    "counter_circuit": {"train": 36, "validation": 12, "test": 42},
 }
 
 

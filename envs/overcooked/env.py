@@ -4,13 +4,14 @@ Two cooks share a kitchen (:mod:`.kitchen`: five layouts). A soup is three onion
 steps, is ladled onto a plate and served at a serving spot (20 points). The game's dynamics are JaxMARL's,
 unchanged: this class wraps its ``step_env`` (no auto-reset) and reads the events it needs off the states.
 
-Agents: the human is JaxMARL's ``agent_0`` (player 0 of the people's trials), the robot ``agent_1`` (player 1).
-Each has 6 discrete actions: 0 up, 1 down, 2 right, 3 left, 4 stay, 5 interact (y points down); ``step`` takes
+Seats: each episode seats the human as one of the two players, the robot as the other (the init vector's last
+entry, ``seat``: the human's player, 0 or 1; ``sample_init`` draws it, so the robot learns and is judged in both
+seats, as the field's agents are). ``State.info["seat"]`` holds it. Each agent has 6 discrete actions: 0 up, 1 down, 2 right, 3 left, 4 stay, 5 interact (y points down); ``step`` takes
 ``concat(a_H, a_R)`` as two one-hot vectors (12 floats) and acts on the argmax of each half.
 
-Observation: ``agent_0``'s JaxMARL observation, an (H, W, 26) grid of feature planes (``obs_grid``; the human's
-planes first, then the robot's, then the kitchen's, pots and items, and the last-40-steps urgency plane),
-flattened to float32. Reward: JaxMARL's, 20 per delivered soup (shared). Episodes last ``max_episode_steps``
+Observation: the human's JaxMARL observation (that of the human's player), an (H, W, 26) grid of feature planes
+(``obs_grid``; the human's planes first, then the robot's, then the kitchen's, pots and items, and the last-40-steps
+urgency plane), flattened to float32; ``obs[seat_view]`` is the robot's. Reward: JaxMARL's, 20 per delivered soup (shared). Episodes last ``max_episode_steps``
 (400); nothing ends them earlier, so every end is a truncation.
 
 Metrics (float32, counted over the episode): ``soups`` (deliveries), ``success`` (1 once a soup was delivered),
@@ -80,7 +81,7 @@ class Overcooked(CollabEnv):
         self.name = "overcooked" if kitchen == "cramped_room" else f"overcooked_{kitchen}"
         # the dynamics (JaxMARL v1), the observation and init layouts and the start (version fingerprint)
         self.spec_tag = f"overcooked-v1-{kitchen}" + ("" if start == "trials" else f"-{start}")
-        self.init_size = self.geometry.init_size
+        self.init_size = self.geometry.init_size + 1  # the game state, then the human's seat
         self.obs_grid = (self.geometry.height, self.geometry.width, OBS_CHANNELS)
         # the state as player 1 sees it: JaxMARL puts an agent's own planes first (position 0, orientations 2-5) and
         # its partner's next (1, 6-9); the kitchen's planes are the same for both
@@ -97,25 +98,36 @@ class Overcooked(CollabEnv):
     def sample_init(self, rng: jax.Array) -> jax.Array:
         """The task's start (module docstring): fixed cells, empty hands, pots and counters; random facings."""
         cells = self.geometry.start if self.start == "trials" else self.geometry.jaxmarl_start
-        return kt.start_init(self.geometry, jax.random.randint(rng, (2,), 0, 4), cells)
+        k_dir, k_seat = jax.random.split(rng)
+        game = kt.start_init(self.geometry, jax.random.randint(k_dir, (2,), 0, 4), cells)
+        return jnp.concatenate([game, jax.random.randint(k_seat, (1,), 0, 2).astype(jnp.float32)])
+
+    def seat_init(self, init: jax.Array, seat) -> jax.Array:
+        """``init`` with the human seated as player ``seat`` (0 or 1)."""
+        return jnp.asarray(init).at[-1].set(jnp.asarray(seat, jnp.float32))
 
     def reset_from(self, init: jax.Array) -> State:
-        ps = kt.state_from_init(self.geometry, init)
+        init = jnp.asarray(init, jnp.float32)
+        ps = kt.state_from_init(self.geometry, init[:-1])
+        seat = init[-1].astype(jnp.int32)
         zero = jnp.zeros((), jnp.float32)
         metrics = {k: zero for k in METRICS}
-        info = {"t": jnp.zeros((), jnp.int32), "truncation": zero}
-        return State(ps, self._obs(ps), zero, zero, metrics, info)
+        info = {"t": jnp.zeros((), jnp.int32), "truncation": zero, "seat": seat}
+        return State(ps, self._obs(self._game.get_obs(ps), seat), zero, zero, metrics, info)
 
     def encode(self, state: State) -> jax.Array:
         """The init vector of a state (``reset_from(encode(s))`` restores the game state of ``s``)."""
-        return kt.init_from_state(self.geometry, state.pipeline_state)
+        return jnp.concatenate([kt.init_from_state(self.geometry, state.pipeline_state),
+                                state.info["seat"].astype(jnp.float32)[None]])
 
-    def _obs(self, ps) -> jax.Array:
-        return self._game.get_obs(ps)["agent_0"].astype(jnp.float32).reshape(-1)
+    def _obs(self, obs: dict, seat) -> jax.Array:
+        """The human's observation: that of the human's player."""
+        return jnp.where(seat == 0, obs["agent_0"], obs["agent_1"]).astype(jnp.float32).reshape(-1)
 
     def step(self, state: State, action: jax.Array) -> State:
-        ps = state.pipeline_state
-        acts = jnp.argmax(jnp.asarray(action).reshape(2, NUM_ACTIONS), axis=-1).astype(jnp.int32)
+        ps, seat = state.pipeline_state, state.info["seat"]
+        hr = jnp.argmax(jnp.asarray(action).reshape(2, NUM_ACTIONS), axis=-1).astype(jnp.int32)  # human, robot
+        acts = jnp.where(seat == 0, hr, hr[::-1])  # by player
         obs, nps, rewards, _, _ = self._game.step_env(jax.random.PRNGKey(0), ps, {"agent_0": acts[0],
                                                                                   "agent_1": acts[1]})
         before, after = ps.agent_inv, nps.agent_inv
@@ -129,16 +141,16 @@ class Overcooked(CollabEnv):
         }
         m = dict(state.metrics)
         for name, happened in events.items():
-            happened = happened.astype(jnp.float32)
-            m[f"{name}_h"] = m[f"{name}_h"] + happened[0]
-            m[f"{name}_r"] = m[f"{name}_r"] + happened[1]
+            happened = happened.astype(jnp.float32)  # by player: the human's is the seat's
+            m[f"{name}_h"] = m[f"{name}_h"] + happened[seat]
+            m[f"{name}_r"] = m[f"{name}_r"] + happened[1 - seat]
         m["soups"] = m["soups"] + jnp.sum(events["served"].astype(jnp.float32))
         m["success"] = (m["soups"] > 0).astype(jnp.float32)
         t = state.info["t"] + 1
         done, truncation = self.time_limit(t, jnp.zeros((), bool))
         info = dict(state.info, t=t, truncation=truncation)
         reward = jnp.asarray(rewards["agent_0"], jnp.float32)
-        obs = obs["agent_0"].astype(jnp.float32).reshape(-1)
+        obs = self._obs(obs, seat)
         return state.replace(pipeline_state=nps, obs=obs, reward=reward, done=done, metrics=m, info=info)
 
     # ------------------------------------------------------------------ strategies
@@ -155,11 +167,17 @@ class Overcooked(CollabEnv):
         from .render import render_frame
 
         init = np.asarray(jax.device_get(self.encode(state)))
-        return render_frame(self.geometry, init, width, height)
+        game, seat = init[:-1].copy(), int(round(float(init[-1])))
+        if seat == 1:  # the human drawn as the first player (orange)
+            sl = self.geometry.init_slices()
+            for name in ("dir", "held"):
+                game[sl[name]] = game[sl[name]][::-1]
+            game[0:4] = np.concatenate([game[2:4], game[0:2]])
+        return render_frame(self.geometry, game, width, height)
 
     def human_position(self, state: State) -> jax.Array:
         """The human's cell (x, y), y down."""
-        return state.pipeline_state.agent_pos[0].astype(jnp.float32)
+        return state.pipeline_state.agent_pos[state.info["seat"]].astype(jnp.float32)
 
 
 def _owner(human: jax.Array, robot: jax.Array) -> jax.Array:

@@ -16,7 +16,9 @@ Splits (:func:`recorded`): ``train`` and ``validation`` come from the training t
 validation pairs are a fixed quarter (at least 2) of the kitchen's training pairs, chosen by a hash of the pair
 id; ``test`` is the test trials (other pairs). Each trial is cut into consecutive episodes of the env's
 ``max_episode_steps`` (400), the last partial one kept if it has at least a quarter of that (100 steps); an
-episode starts from the recorded state at its first step (its ``init``), and its observations are the env's
+episode starts from the recorded state at its first step (its ``init``), and comes twice: with the human agent as
+the trial's player 0 and as its player 1 (the other person the robot's part; the init's seat), so that a robot learns
+both seats. Its observations are the env's
 when the recorded joint actions are replayed from there.
 
 :func:`replay_agreement` replays every trial's joint actions open loop through the env from its recorded first
@@ -265,10 +267,11 @@ def recorded(env: Overcooked, split: str, batch: int = 8) -> dict:
         for start, n in episode_cuts(len(trial.actions), steps):
             ids = np.full((steps, 2), STAY, np.int32)
             ids[:n] = trial.actions[start:start + n]
-            inits.append(trial.inits[start])
-            actions.append(one_hot_actions(ids).reshape(steps, 2 * NUM_ACTIONS))
-            lengths.append(n)
-            pairs.append(trial.pair)
+            for seat in (0, 1):  # each episode twice: the human agent as player 0, then as player 1
+                inits.append(np.append(trial.inits[start], seat))
+                actions.append(one_hot_actions(ids if seat == 0 else ids[:, ::-1]).reshape(steps, 2 * NUM_ACTIONS))
+                lengths.append(n)
+                pairs.append(trial.pair)
     num = len(lengths)
     inits, actions, lengths = np.stack(inits), np.stack(actions), np.asarray(lengths, np.int32)
     run = _episode_fn(env)
@@ -325,10 +328,10 @@ def replay_agreement(kitchen: str, split: str, steps: int | None = None, trial_i
     for i, t in enumerate(chosen):
         n = min(len(t.actions), length)
         acts[i, :n] = t.actions[:n]
-    inits = np.stack([t.inits[0] for t in chosen])
+    inits = np.stack([np.append(t.inits[0], 0) for t in chosen])  # the human agent as player 0, as recorded
     states, rewards = _trajectory_fn(env)(jnp.asarray(inits),
                                           jnp.asarray(one_hot_actions(acts).reshape(len(chosen), length, -1)))
-    states, rewards = np.asarray(states), np.asarray(rewards)
+    states, rewards = np.asarray(states)[..., :-1], np.asarray(rewards)
     total = {f: 0 for f in (*FIELDS, "all")}
     divergence = []
     n_steps = 0

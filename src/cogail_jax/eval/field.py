@@ -2,9 +2,9 @@
 
 H_proxy is behaviour cloning of the TEST pairs' people, in both seats (each player's actions on the state as that
 player sees it), so it stands for a person the robot has never met: neither training nor checkpoint selection reads
-the test split. The robot plays both seats (as the trials' player 1, the human agent's partner as it was trained,
-and as player 0, reading the state as its partner in seat 1 sees it: the env's ``seat_view``), 400-step episodes, at
-least 100 per seed and seat on an accelerator; reward (the task's, 20 per soup on Overcooked) and the score
+the test split. The robot plays both seats (the env's ``seat_init`` seats the human agent, here the partner, as player
+1 or player 0; the robot learned both from the people's recordings of either player), 400-step episodes, at least 100
+per seed and seat on an accelerator; reward (the task's, 20 per soup on Overcooked) and the score
 (soups) are reported as mean and standard error over every episode, with each seed's mean.
 
 * **Selection**: every checkpoint plays both seats with a BC model of the VALIDATION pairs; the checkpoint with the
@@ -36,9 +36,11 @@ SEATS = (0, 1)
 
 
 def supported(env) -> bool:
-    """Whether the field's protocol applies: a task with discrete agents of the same actions and a ``seat_view``."""
+    """Whether the field's protocol applies: a task with discrete agents of the same actions, a ``seat_view`` and a
+    ``seat_init``."""
     spec = actions.spec_of(env)
-    return bool(len(getattr(env, "seat_view", ()) or ()) and spec.human_discrete and spec.robot_discrete
+    return bool(len(getattr(env, "seat_view", ()) or ()) and hasattr(env, "seat_init") and spec.human_discrete
+                and spec.robot_discrete
                 and spec.human_size == spec.robot_size)
 
 
@@ -108,11 +110,13 @@ def split_arrays(path, env) -> dict:
 
 
 # ------------------------------------------------------------------------------------------------ the program
-def make_play(env, cfg, nets, kinds: tuple[str, str]):
+def make_play(env, cfg, nets, kinds: tuple[str, str], human_seat: int):
     """Jitted ``play(agent0, agent1, keys) -> {"reward", "score"}`` (each (S, E)): E episodes of the task's time
-    limit from the task's start (episode e's from ``keys[e]``), each seat's agent a learned robot (``{"params",
-    "norm"}`` with a leading seed axis S, vmapped) or a BC model (``coplay.Proxy``, the same for every seed), as
-    ``kinds`` says ("robot" or "bc"). Player 0's action is the env's human action, player 1's its robot action."""
+    limit from the task's start with the human agent seated as player ``human_seat`` (episode e's from
+    ``keys[e]``); the agent in the human's slot (``agent0``) and in the robot's (``agent1``) each a learned robot
+    (``{"params", "norm"}`` with a leading seed axis S, vmapped) or a BC model (``coplay.Proxy``, the same for every
+    seed), as ``kinds`` says ("robot" or "bc"). The env's observation is the human slot's view: a BC model reads its
+    own view, a robot its partner's (as it was trained), the other slot's through ``seat_view``."""
     from .rollouts import make_robot_step
 
     perm = jnp.asarray(np.asarray(env.seat_view))
@@ -132,7 +136,7 @@ def make_play(env, cfg, nets, kinds: tuple[str, str]):
 
     def one_seed(a0, a1, keys):
         E = keys.shape[0]
-        state = jax.vmap(lambda k: env.reset_from(env.sample_init(k)))(keys)
+        state = jax.vmap(lambda k: env.reset_from(env.seat_init(env.sample_init(k), human_seat)))(keys)
         hist = jnp.repeat(state.obs[:, None], H + 1, 1)
 
         def body(carry, t):
@@ -208,17 +212,18 @@ class Field:
                         "heldout_episodes": int(held.sum()), "samples": int(len(x)),
                         "accuracy_train_samples": accuracy(self.h_proxy, x, y)}
 
-    def play(self, a0, a1, kinds: tuple[str, str], episodes: int, salt: int) -> dict:
-        if kinds not in self.programs:
-            self.programs[kinds] = make_play(self.s.env, self.s.cfg, self.s.nets, kinds)
-        out = self.programs[kinds](a0, a1, episode_keys(episodes, salt))
+    def play(self, a0, a1, kinds: tuple[str, str], episodes: int, salt: int, human_seat: int = 0) -> dict:
+        key = (kinds, human_seat)
+        if key not in self.programs:
+            self.programs[key] = make_play(self.s.env, self.s.cfg, self.s.nets, kinds, human_seat)
+        out = self.programs[key](a0, a1, episode_keys(episodes, salt))
         return jax.tree.map(np.asarray, jax.device_get(out))
 
     def with_partner(self, robot: dict, partner, episodes: int, salt: int) -> dict:
         """The robot in each seat with a BC ``partner``: {"seat0", "seat1", "both"} stats (seat k: the robot's)."""
         seeds = self.s.cfg.seeds
-        r0 = self.play(robot, partner, ("robot", "bc"), episodes, salt)
-        r1 = self.play(partner, robot, ("bc", "robot"), episodes, salt)
+        r0 = self.play(partner, robot, ("bc", "robot"), episodes, salt, human_seat=1)
+        r1 = self.play(partner, robot, ("bc", "robot"), episodes, salt, human_seat=0)
         return {"seat0": stats(r0, seeds), "seat1": stats(r1, seeds), "both": _pool(r0, r1, seeds)}
 
     def proxy_quality(self) -> dict:
@@ -245,7 +250,8 @@ def evaluate(s, store, steps: list[int], memory: dict | None = None, n: dict | N
     chosen = max(st for st, v in per_ckpt.items() if v == best)
     robot = _checkpoint_params(store, memory, chosen)
     seeds = s.cfg.seeds
-    sp = f.play(robot, robot, ("robot", "robot"), f.n["episodes"], 3)
+    sp = _pool(f.play(robot, robot, ("robot", "robot"), f.n["episodes"], 3, 0),
+               f.play(robot, robot, ("robot", "robot"), f.n["episodes"], 3, 1), seeds)
     return {
         "protocol": {"episodes_per_seed_and_seat": f.n["episodes"], "selection_episodes": f.n["select_episodes"],
                      "bc_steps": f.n["bc_steps"], "seed": FIELD_SEED, "score": s.env.score_metric or "success",
@@ -253,7 +259,7 @@ def evaluate(s, store, steps: list[int], memory: dict | None = None, n: dict | N
         "selected": {"checkpoint": int(chosen), "validation_reward": per_ckpt},
         "h_proxy": f.with_partner(robot, f.h_proxy, f.n["episodes"], 0),
         "bc_train": f.with_partner(robot, f.bc_train, f.n["episodes"], 2),
-        "self_play": stats(sp, seeds),
+        "self_play": sp,
         "proxy_quality": f.proxy_quality(),
     }
 

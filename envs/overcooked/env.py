@@ -80,7 +80,7 @@ class Overcooked(CollabEnv):
         self.start = start
         self.name = "overcooked" if kitchen == "cramped_room" else f"overcooked_{kitchen}"
         # the dynamics (JaxMARL v1), the observation and init layouts and the start (version fingerprint)
-        self.spec_tag = f"overcooked-v1-{kitchen}" + ("" if start == "trials" else f"-{start}")
+        self.spec_tag = f"overcooked-v1-seats-{kitchen}" + ("" if start == "trials" else f"-{start}")
         self.init_size = self.geometry.init_size + 1  # the game state, then the human's seat
         self.obs_grid = (self.geometry.height, self.geometry.width, OBS_CHANNELS)
         # the state as player 1 sees it: JaxMARL puts an agent's own planes first (position 0, orientations 2-5) and

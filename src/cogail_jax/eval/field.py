@@ -96,6 +96,23 @@ def fit_bc(x: np.ndarray, y: np.ndarray, steps: int, seed: int) -> coplay.Proxy:
     return coplay.Proxy(fit(layers, jnp.asarray(x), jnp.asarray(y)), jnp.asarray(mean), jnp.asarray(std))
 
 
+def held_out_episodes(obs: np.ndarray, env) -> np.ndarray:
+    """(N,) bool: the test episodes H_proxy's accuracy is measured on, every ``1 / HOLDOUT``-th window of play. An
+    episode recorded in both seats (the same first state, one the other's ``seat_view``) is one window: both of its
+    copies are held out together, or the copy fitted would have seen the held-out steps from the other seat."""
+    first = np.asarray(obs)[:, 0]
+    perm = np.asarray(env.seat_view)
+    window, seen = np.zeros(len(first), np.int64), []
+    for i, o in enumerate(first):
+        match = next((w for w, ref in enumerate(seen) if np.array_equal(o, ref) or np.array_equal(o[perm], ref)), None)
+        if match is None:
+            seen.append(o)
+            match = len(seen) - 1
+        window[i] = match
+    every = int(round(1 / HOLDOUT))
+    return window % every == every - 1
+
+
 def accuracy(model: coplay.Proxy, x: np.ndarray, y: np.ndarray) -> float:
     """The share of samples whose most likely choice is the person's."""
     logits = np.asarray(coplay._mlp(model, jnp.asarray(x), squash=False))
@@ -205,8 +222,7 @@ class Field:
         self.bc_train = fit_bc(*xs["train"][:2], steps, 0)
         self.bc_validation = fit_bc(*xs["validation"][:2], steps, 0)
         x, y, ep = xs["test"]
-        n_ep = int(ep.max()) + 1
-        held = np.arange(n_ep) % int(round(1 / HOLDOUT)) == int(round(1 / HOLDOUT)) - 1  # every 5th episode
+        held = held_out_episodes(splits["test"]["obs"], env)
         self.copy = fit_bc(x[~held[ep]], y[~held[ep]], steps, 1)
         self.quality = {"accuracy_heldout": accuracy(self.copy, x[held[ep]], y[held[ep]]),
                         "heldout_episodes": int(held.sum()), "samples": int(len(x)),

@@ -1,0 +1,103 @@
+"""The field's protocol (cogail_jax.eval.field): H_proxy is fitted on the test pairs alone, the robot plays both
+seats, held-out accuracy holds out both copies of a window, and the episodes' figures are the game's."""
+from __future__ import annotations
+
+import types
+
+import h5py
+import jax
+import numpy as np
+import pytest
+
+import cogail_envs
+from cogail_jax.algo.config import TrainConfig
+from cogail_jax.data import recorded
+from cogail_jax.eval import field
+
+pytest.importorskip("pandas")
+
+
+@pytest.fixture(scope="module")
+def people(tmp_path_factory):
+    """The cramped room's three splits of people, written as `cogail data` writes them."""
+    d = tmp_path_factory.mktemp("people")
+    env = cogail_envs.make_env("overcooked")
+    task = cogail_envs.get_task("overcooked")
+    files = {}
+    for split in ("train", "validation", "test"):
+        rec = task.recorded(env, split)
+        files[split] = d / f"{split}.hdf5"
+        from cogail_jax.data import io  # noqa: PLC0415
+
+        io.save_demos(files[split], env, recorded.episodes(rec))
+        with h5py.File(files[split], "a") as f:
+            for i, pair in enumerate(rec["pair"]):
+                f["data"][f"demo_{i}"].attrs["pair"] = int(pair)
+    return env, files
+
+
+def _pairs(path) -> set[int]:
+    with h5py.File(path, "r") as f:
+        return {int(g.attrs["pair"]) for g in f["data"].values()}
+
+
+def test_h_proxy_sees_only_the_test_pairs(people, monkeypatch):
+    env, files = people
+    pairs = {k: _pairs(v) for k, v in files.items()}
+    assert not pairs["test"] & (pairs["train"] | pairs["validation"])  # people the robot never met
+    fitted = []
+    monkeypatch.setattr(field, "fit_bc", lambda x, y, steps, seed: fitted.append((x, y, seed)) or len(fitted) - 1)
+    monkeypatch.setattr(field, "accuracy", lambda *a: 0.0)
+    s = types.SimpleNamespace(env=env, cfg=TrainConfig(task="overcooked"), files={k: str(v) for k, v in files.items()},
+                              nets=None)
+    f = field.Field(s, {"episodes": 1, "select_episodes": 1, "bc_steps": 1})
+    samples = {k: field.seat_samples(env, **{n: field.split_arrays(v, env)[n] for n in ("obs", "ah", "ar", "length")})
+               for k, v in files.items()}
+    x, y = fitted[f.h_proxy][:2]
+    np.testing.assert_array_equal(x, samples["test"][0])
+    np.testing.assert_array_equal(y, samples["test"][1])
+    np.testing.assert_array_equal(fitted[f.bc_train][0], samples["train"][0])
+    np.testing.assert_array_equal(fitted[f.bc_validation][0], samples["validation"][0])
+
+
+def test_held_out_windows_take_both_seats(people):
+    env, files = people
+    obs = field.split_arrays(files["test"], env)["obs"]
+    held = field.held_out_episodes(obs, env)
+    assert held.any() and not held.all()
+    perm = np.asarray(env.seat_view)
+    for i in range(0, len(obs), 2):  # each window's two copies: the human agent as player 0, then as player 1
+        np.testing.assert_array_equal(obs[i + 1, 0], obs[i, 0][perm])
+        assert held[i] == held[i + 1]
+
+
+def test_both_seats_are_played(monkeypatch):
+    seats = []
+    f = field.Field.__new__(field.Field)
+    f.s = types.SimpleNamespace(cfg=TrainConfig(task="overcooked", seeds=(1,)))
+
+    def play(self, a0, a1, kinds, episodes, salt, human_seat=0):
+        seats.append((kinds, human_seat))
+        return {"reward": np.full((1, episodes), 20.0 * (1 + human_seat)), "score": np.ones((1, episodes))}
+
+    monkeypatch.setattr(field.Field, "play", play)
+    r = f.with_partner("robot", "partner", 3, 0)
+    assert sorted(seats) == [(("bc", "robot"), 0), (("bc", "robot"), 1)]  # the robot in its slot, either player
+    assert r["seat0"]["reward"]["mean"] == 40.0 and r["seat1"]["reward"]["mean"] == 20.0  # seat: the robot's player
+    assert r["both"]["episodes"] == 6 and r["both"]["reward"]["mean"] == 30.0
+
+
+def test_two_bc_players_play_the_game(people):
+    env, files = people
+    a = field.split_arrays(files["validation"], env)
+    x, y, _ = field.seat_samples(env, a["obs"], a["ah"], a["ar"], a["length"])
+    bc = field.fit_bc(x, y, 200, 0)
+    out = {}
+    for seat in (0, 1):
+        play = field.make_play(env, None, None, ("bc", "bc"), seat)
+        out[seat] = jax.tree.map(np.asarray, play(bc, bc, field.episode_keys(4, 0)))
+        assert out[seat]["reward"].shape == (1, 4)
+        np.testing.assert_array_equal(out[seat]["reward"], 20 * out[seat]["score"])  # 20 per soup served
+    assert field.accuracy(bc, x, y) > 0.5
+    st = field.stats(out[0], (0,))
+    assert st["episodes"] == 4 and st["reward"]["se"] >= 0

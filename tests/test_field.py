@@ -93,9 +93,9 @@ def test_two_bc_players_play_the_game(people):
     x, y, _ = field.seat_samples(env, a["obs"], a["ah"], a["ar"], a["length"])
     bc = field.fit_bc(x, y, 200, 0)
     out = {}
+    play = field.make_play(env, None, None, ("bc", "bc"))
     for seat in (0, 1):
-        play = field.make_play(env, None, None, ("bc", "bc"), seat)
-        out[seat] = jax.tree.map(np.asarray, play(bc, bc, field.episode_keys(4, 0)))
+        out[seat] = jax.tree.map(np.asarray, play(bc, bc, field.episode_keys(4, 0), np.int32(seat)))
         assert out[seat]["reward"].shape == (1, 4)
         np.testing.assert_array_equal(out[seat]["reward"], 20 * out[seat]["score"])  # 20 per soup served
     assert field.accuracy(bc, x, y) > 0.5

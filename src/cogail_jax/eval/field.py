@@ -127,9 +127,10 @@ def split_arrays(path, env) -> dict:
 
 
 # ------------------------------------------------------------------------------------------------ the program
-def make_play(env, cfg, nets, kinds: tuple[str, str], human_seat: int):
-    """Jitted ``play(agent0, agent1, keys) -> {"reward", "score"}`` (each (S, E)): E episodes of the task's time
-    limit from the task's start with the human agent seated as player ``human_seat`` (episode e's from
+def make_play(env, cfg, nets, kinds: tuple[str, str]):
+    """Jitted ``play(agent0, agent1, keys, human_seat) -> {"reward", "score"}`` (each (S, E)): E episodes of the
+    task's time limit from the task's start with the human agent seated as player ``human_seat`` (an int32 array:
+    one program for both seats; episode e's from
     ``keys[e]``); the agent in the human's slot (``agent0``) and in the robot's (``agent1``) each a learned robot
     (``{"params", "norm"}`` with a leading seed axis S, vmapped) or a BC model (``coplay.Proxy``, the same for every
     seed), as ``kinds`` says ("robot" or "bc"). The env's observation is the human slot's view: a BC model reads its
@@ -151,7 +152,7 @@ def make_play(env, cfg, nets, kinds: tuple[str, str], human_seat: int):
         mean, _ = actor(agent["params"]["actor"], obs, z)
         return actions.agent_act(True, mean[Ah:], key)
 
-    def one_seed(a0, a1, keys):
+    def one_seed(a0, a1, keys, human_seat):
         E = keys.shape[0]
         state = jax.vmap(lambda k: env.reset_from(env.seat_init(env.sample_init(k), human_seat)))(keys)
         hist = jnp.repeat(state.obs[:, None], H + 1, 1)
@@ -182,8 +183,8 @@ def make_play(env, cfg, nets, kinds: tuple[str, str], human_seat: int):
 
     axes = tuple(0 if k == "robot" else None for k in kinds)
     if all(a is None for a in axes):  # no seed axis: one "seed"
-        return jax.jit(lambda a0, a1, keys: jax.tree.map(lambda x: x[None], one_seed(a0, a1, keys)))
-    return jax.jit(jax.vmap(one_seed, in_axes=(*axes, None)))
+        return jax.jit(lambda a0, a1, keys, seat: jax.tree.map(lambda x: x[None], one_seed(a0, a1, keys, seat)))
+    return jax.jit(jax.vmap(one_seed, in_axes=(*axes, None, None)))
 
 
 def episode_keys(n: int, salt: int) -> jax.Array:
@@ -229,10 +230,9 @@ class Field:
                         "accuracy_train_samples": accuracy(self.h_proxy, x, y)}
 
     def play(self, a0, a1, kinds: tuple[str, str], episodes: int, salt: int, human_seat: int = 0) -> dict:
-        key = (kinds, human_seat)
-        if key not in self.programs:
-            self.programs[key] = make_play(self.s.env, self.s.cfg, self.s.nets, kinds, human_seat)
-        out = self.programs[key](a0, a1, episode_keys(episodes, salt))
+        if kinds not in self.programs:
+            self.programs[kinds] = make_play(self.s.env, self.s.cfg, self.s.nets, kinds)
+        out = self.programs[kinds](a0, a1, episode_keys(episodes, salt), jnp.asarray(human_seat, jnp.int32))
         return jax.tree.map(np.asarray, jax.device_get(out))
 
     def with_partner(self, robot: dict, partner, episodes: int, salt: int) -> dict:

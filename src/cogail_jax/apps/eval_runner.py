@@ -221,7 +221,8 @@ def eval_extra_sets(run_dir: str | Path, extra_sets: dict[str, str | Path]) -> d
 def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_file: str | Path | None = None,
              extra_sets: dict[str, str | Path] | None = None, ckpt_batch: int | None = None,
              robustness: bool = False, memory: dict | None = None, extra_curves: bool = False,
-             prepared: EvalInputs | None = None, coplay: bool = False, coplay_episodes: int | None = None) -> dict:
+             prepared: EvalInputs | None = None, coplay: bool = False, coplay_episodes: int | None = None,
+             field: bool = False) -> dict:
     """Evaluate every checkpoint of a run; write results.json / results.md and figures into the run dir.
 
     Every checkpoint and seed is evaluated on the test split (replay, interpolation, latent codes) and on the
@@ -256,6 +257,9 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     paper-protocol replay checkpoints, and the task's scripted robot as reference, each with every partner (the
     scripted human, each of its variations, a human proxy behaviour-cloned on the test split), ``coplay_episodes``
     episodes per partner (default ``coplay.default_episodes()``); results.json's ``coplay``, RUN/coplay.png.
+
+    ``field``: also the field's protocol (:mod:`cogail_jax.eval.field`) where the task supports it (people's data,
+    both seats): results.json's ``field``.
 
     ``prepared``: the run's ``EvalInputs`` made already, or the ``EvalPrep`` making them while training runs (waited
     for in the eval phase's set-up); its extra sets and ``extra_curves`` then stand for the arguments'.
@@ -295,9 +299,9 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
         if coplay:
             with part_clock("coplay"):
                 res["coplay"] = _coplay(s, store, res, memory, coplay_episodes, inp.coplay)
-            if field_eval.supported(s.env):  # a task learned from people: the field's protocol (H_proxy, both seats)
-                with part_clock("field"):
-                    res["field"] = field_eval.evaluate(s, store, steps, memory)
+        if field and field_eval.supported(s.env):  # a task learned from people: the field's protocol
+            with part_clock("field"):
+                res["field"] = field_eval.evaluate(s, store, steps, memory)
     with clock("write"):
         _write_eval_outputs(run_dir, s, res, at, lat, sets, robustness)
     if prepared is not None:

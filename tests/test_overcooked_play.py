@@ -50,15 +50,17 @@ def test_play_overcooked_in_the_browser(oc_run, browser):  # noqa: F811
         assert browser.find_element(By.ID, "task").text.startswith("overcooked")
         assert "Space: interact" in browser.find_element(By.ID, "help").text
         x0 = float(_attr(browser, "human", "data-x"))
-        _hold(browser, Keys.ARROW_RIGHT, 0.05)  # a tap shorter than a step still moves the cook
+        # the human's start cell: player 0's (1, 2), a free cell on its right, or player 1's (3, 1), one on its left
+        key, dx, choice = (Keys.ARROW_RIGHT, 1, 2) if x0 == 1 else (Keys.ARROW_LEFT, -1, 3)
+        _hold(browser, key, 0.05)  # a tap shorter than a step still moves the cook
         _wait_status(browser, "running")
         _hold(browser, Keys.SPACE, 0.05)
         browser.implicitly_wait(0)
         for _ in range(40):  # the page steps at 7 Hz: wait for the move to show
-            if float(_attr(browser, "human", "data-x")) == x0 + 1:
+            if float(_attr(browser, "human", "data-x")) == x0 + dx:
                 break
             browser.execute_script("return new Promise(r => setTimeout(r, 100))")
-        assert float(_attr(browser, "human", "data-x")) == x0 + 1
+        assert float(_attr(browser, "human", "data-x")) == x0 + dx
         browser.find_element(By.ID, "end").click()
         _wait_status(browser, "failure", "success")
     finally:
@@ -70,7 +72,7 @@ def test_play_overcooked_in_the_browser(oc_run, browser):  # noqa: F811
         ah, ar = d0["actions_human"][()], d0["actions_robot"][()]
         assert ah.shape[1] == ar.shape[1] == 6 and np.all(ah.sum(1) == 1) and np.all(ar.sum(1) == 1)
         choices = ah.argmax(1).tolist()
-        assert choices[0] == 2 and 5 in choices and set(choices) <= {2, 4, 5}  # right, interact, else stay
+        assert choices[0] == choice and 5 in choices and set(choices) <= {choice, 4, 5}  # the move, interact, stay
         assert d0["init"].shape == (cogail_envs.make_env("overcooked").init_size,)
         assert d0.attrs["end"] == "ended" and "metric_soups" in d0.attrs
 

@@ -301,7 +301,7 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
                 res["coplay"] = _coplay(s, store, res, memory, coplay_episodes, inp.coplay)
         if field and field_eval.supported(s.env):  # a task learned from people: the field's protocol
             with part_clock("field"):
-                res["field"] = field_eval.evaluate(s, store, steps, memory)
+                res["field"] = field_eval.evaluate(s, lambda st: _checkpoint_params(store, memory, st), steps)
     with clock("write"):
         _write_eval_outputs(run_dir, s, res, at, lat, sets, robustness)
     if prepared is not None:

@@ -250,21 +250,19 @@ class Field:
         return {**self.quality, "with_itself": stats(itself, one), "with_copy": stats(copy, one)}
 
 
-def evaluate(s, store, steps: list[int], memory: dict | None = None, n: dict | None = None) -> dict:
-    """results.json's ``field`` for a run's set-up ``s`` (its splits' files in ``s.files``) and policies ``store``:
-    selection over ``steps`` with the validation pairs' BC model, then H_proxy, the training pairs' BC model and
-    self-play at the selected checkpoint, and H_proxy's quality."""
-    from ..apps.eval_runner import _checkpoint_params
-
+def evaluate(s, load, steps: list[int], n: dict | None = None) -> dict:
+    """results.json's ``field`` for a run's set-up ``s`` (its splits' files in ``s.files``), ``load(step)`` giving a
+    checkpoint's evaluation parameters: selection over ``steps`` with the validation pairs' BC model, then H_proxy,
+    the training pairs' BC model and self-play at the selected checkpoint, and H_proxy's quality."""
     f = Field(s, n)
     per_ckpt = {}
     for st in steps:
-        robot = _checkpoint_params(store, memory, st)
+        robot = load(st)
         r = f.with_partner(robot, f.bc_validation, f.n["select_episodes"], 1)
         per_ckpt[int(st)] = r["both"]["reward"]["mean"]
     best = max(per_ckpt.values())
     chosen = max(st for st, v in per_ckpt.items() if v == best)
-    robot = _checkpoint_params(store, memory, chosen)
+    robot = load(chosen)
     seeds = s.cfg.seeds
     sp = _pool(f.play(robot, robot, ("robot", "robot"), f.n["episodes"], 3, 0),
                f.play(robot, robot, ("robot", "robot"), f.n["episodes"], 3, 1), seeds)

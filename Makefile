@@ -13,7 +13,7 @@ EXTRA ?=
 .PHONY: install browser train eval test demos video bench first-run clean help paper paper-check paper-compare
 
 help:
-	@echo "make train [TASK=fetchq|handover|seqmanip|overcooked|overcooked_KITCHEN|module:TASK] [METHOD=cogail|ma_infogail|ma_gail|bc_gail|bc_single|diayn]"
+	@echo "make train [TASK=fetchq|handover|seqmanip|overcooked|overcooked_KITCHEN|module:TASK] [METHOD=cogail|ma_infogail|ma_gail|bc_gail|bc_single|diayn|ppo_bc|ppo_sp]"
 	@echo "           [SEEDS=300,400,500] [BUDGET=paper|quick|2x] [RUN=dir] [EXTRA='--set FIELD=VALUE ...']"
 	@echo "make eval RUN=dir | make test | make demos TASK=... (the run's datasets) | make video RUN=dir | make bench"
 	@echo "make first-run [TASKS=fetchq] (cold, warm and new-config make train, timed; TASKS=fetchq,handover,seqmanip)"

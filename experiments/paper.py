@@ -961,6 +961,44 @@ def field_seat_rows(results: dict) -> list[str]:
     return rows
 
 
+def crossplay(results: dict, out: Path) -> dict:
+    """Each field task's cross-play matrix (``field.crossplay``): every row's robot with every other's, at the
+    checkpoint the field's protocol selected, from the runs on disk; merged into ``<out>/crossplay.json`` and
+    written as ``<out>/crossplay.md``. Returns the matrices by task."""
+    from cogail_jax.algo.config import TrainConfig
+    from cogail_jax.apps.runs import Policies, build
+    from cogail_jax.eval import field
+
+    path = out / "crossplay.json"
+    done = json.loads(path.read_text()) if path.is_file() else {}
+    by_task: dict = {}
+    for key, r in results.items():
+        parts = key.split("/")
+        if r.get("field") and len(parts) == 3 and (Path(r.get("run", "")) / "config.json").is_file():
+            by_task.setdefault(parts[0], {})[parts[1]] = r
+    for task, rows in by_task.items():
+        if len(rows) < 2:
+            continue
+        robots, env = {}, None
+        for m in (m for m in FIELD_ORDER if m in rows):
+            run = Path(rows[m]["run"])
+            s = build(TrainConfig.load(run / "config.json"), need_heldout=False, need_validation=False, run_dir=run,
+                      need_demos=False)
+            robots[m] = (s.cfg, s.nets, Policies(run, s).load(int(rows[m]["field"]["selected"]["checkpoint"])))
+            env = s.env
+        done[task] = field.crossplay(env, robots, field.sizes()["episodes"])
+        print(f"{task}: cross-play of {len(robots)} robots", flush=True)
+    if done:
+        path.write_text(json.dumps(done, indent=2))
+        text = ["# Cross-play of the field's robots (reward over 400 steps, mean +- s.e., both seats pooled)", "",
+                "Row: the robot in the human agent's slot; column: the robot in the robot's slot; the diagonal is "
+                "self-play. Each at the checkpoint the field's protocol selected.", ""]
+        for task, matrix in done.items():
+            text += [f"## {task}", "", *field.crossplay_markdown(matrix), ""]
+        (out / "crossplay.md").write_text("\n".join(text))
+    return done
+
+
 FIELD_NOTE = ("Reward over 400 steps (20 per soup served), mean +- s.e. over every episode (3 seeds x 100 episodes x "
               "2 seats), each robot at the checkpoint selected with a BC model of the validation pairs, paired with "
               "H_proxy, a BC model of the test pairs that neither training nor selection reads. In brackets: "
@@ -1040,6 +1078,9 @@ def main(argv=None) -> int:
     p.add_argument("--shard", default=None, metavar="i/n",
                    help="run only every n-th job from the i-th (0-based), e.g. 0/2 and 1/2 on two hosts; join "
                         "their results with --merge")
+    p.add_argument("--crossplay", action="store_true",
+                   help="train nothing: the cross-play matrix of every field task's robots in <out>/paper.json (their "
+                        "runs on disk), into <out>/crossplay.{json,md} (a grid run makes it after its jobs)")
     p.add_argument("--nondeterministic", action="store_true", help="allow nondeterministic GPU kernels")
     p.add_argument("--no-compile-cache", action="store_true",
                    help="do not keep compiled programs between runs (as `cogail train --no-compile-cache`)")
@@ -1085,6 +1126,9 @@ def main(argv=None) -> int:
               f"all {len(results)} rows of {out / 'paper.json'} come from this checkout's code "
               f"({(head_commit() or '?')[:10]}) and the current settings")
         return 1 if why else 0
+    if a.crossplay:
+        crossplay(results, out)
+        return 0
     if a.merge or a.tables_only:
         for d in a.merge:
             if (Path(d) / "paper.json").is_file():
@@ -1161,6 +1205,8 @@ def main(argv=None) -> int:
             print(f"{t:9} {m:12} {mix:8} replay {sel[0]} (paper protocol {sel[1]})  interp {pp[0]} "
                   f"(paper protocol {pp[1]})", flush=True)
             tables(results, *table_axes(results, tasks, methods), out, readme)
+    if todo and any(r.get("field") for r in results.values()):  # the field's robots with one another
+        crossplay(results, out)
     if (out / "table1_replay.md").exists():
         print((out / "table1_replay.md").read_text())
         print((out / "table2_interpolation.md").read_text())

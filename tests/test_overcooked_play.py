@@ -87,3 +87,21 @@ def test_discrete_key_mapping():
     assert a.argmax() == 2
     a, _ = play.discrete_action(6, keys, 4, [], buttons=[True])  # its A button
     assert a.argmax() == 5
+
+
+def test_crossplay_of_two_robots(oc_run):
+    """The cross-play matrix: every ordered pair of robots in both seats; one run's robot under two labels gives
+    the same figures in every cell (the same draws, the same policy in either slot), its reward the game's."""
+    from cogail_jax.algo.config import TrainConfig
+    from cogail_jax.apps.runs import Policies, build
+    from cogail_jax.eval import field
+
+    s = build(TrainConfig.load(oc_run / "config.json"), need_heldout=False, need_validation=False, run_dir=oc_run,
+              need_demos=False)
+    params = Policies(oc_run, s).load(0)
+    m = field.crossplay(s.env, {"a": (s.cfg, s.nets, params), "b": (s.cfg, s.nets, params)}, 2)
+    assert set(m) == {"a", "b"} and all(set(row) == {"a", "b"} for row in m.values())
+    cells = [m[x][y] for x in "ab" for y in "ab"]
+    assert all(c == cells[0] for c in cells) and cells[0]["episodes"] == 2 * 2  # 2 episodes x 2 seats (1 seed)
+    assert cells[0]["reward"]["mean"] == 20 * cells[0]["score"]["mean"]
+    assert "| a |" in "\n".join(field.crossplay_markdown(m))

@@ -127,30 +127,38 @@ def split_arrays(path, env) -> dict:
 
 
 # ------------------------------------------------------------------------------------------------ the program
-def make_play(env, cfg, nets, kinds: tuple[str, str]):
+def make_play(env, cfg, nets, kinds: tuple[str, str], other: tuple | None = None):
     """Jitted ``play(agent0, agent1, keys, human_seat) -> {"reward", "score"}`` (each (S, E)): E episodes of the
     task's time limit from the task's start with the human agent seated as player ``human_seat`` (an int32 array:
     one program for both seats; episode e's from
     ``keys[e]``); the agent in the human's slot (``agent0``) and in the robot's (``agent1``) each a learned robot
     (``{"params", "norm"}`` with a leading seed axis S, vmapped) or a BC model (``coplay.Proxy``, the same for every
     seed), as ``kinds`` says ("robot" or "bc"). The env's observation is the human slot's view: a BC model reads its
-    own view, a robot its partner's (as it was trained), the other slot's through ``seat_view``."""
+    own view, a robot its partner's (as it was trained), the other slot's through ``seat_view``. ``other``: ``(cfg,
+    nets)`` of the robot in the robot's slot where it is another run's (cross-play; default: ``cfg``'s and
+    ``nets``')."""
     from .rollouts import make_robot_step
 
     perm = jnp.asarray(np.asarray(env.seat_view))
-    spec = actions.spec_of(env)
     Ah, T = env.human_action_size, env.max_episode_steps
-    K = cfg.history if cfg is not None else 0
-    H = max(K, max(coplay.PROXY_LAGS))
-    if "robot" in kinds:
-        psi_code, _ = make_robot_step(cfg, env, nets)
-        actor = nets["actor"].apply
+    slot_cfgs = (cfg, cfg if other is None else other[0])
+    slot_nets = (nets, nets if other is None else other[1])
+    Ks = [c.history if c is not None and k == "robot" else 0 for c, k in zip(slot_cfgs, kinds)]
+    H = max(*Ks, max(coplay.PROXY_LAGS))
 
-    def robot_act(agent, view_hist, prev_partner, key):  # one episode: the robot reads its partner's view
-        z = psi_code(agent["params"], agent["norm"], view_hist[-(K + 1):], prev_partner)
-        obs = (view_hist[-1] - agent["norm"]["mean"]) / agent["norm"]["std"]
-        mean, _ = actor(agent["params"]["actor"], obs, z)
-        return actions.agent_act(True, mean[Ah:], key)
+    def robot_fn(c, n, K):
+        psi_code, _ = make_robot_step(c, env, n)
+        actor = n["actor"].apply
+
+        def robot_act(agent, view_hist, prev_partner, key):  # one episode: the robot reads its partner's view
+            z = psi_code(agent["params"], agent["norm"], view_hist[-(K + 1):], prev_partner)
+            obs = (view_hist[-1] - agent["norm"]["mean"]) / agent["norm"]["std"]
+            mean, _ = actor(agent["params"]["actor"], obs, z)
+            return actions.agent_act(True, mean[Ah:], key)
+
+        return robot_act
+
+    acts = [robot_fn(c, n, K) if k == "robot" else None for c, n, K, k in zip(slot_cfgs, slot_nets, Ks, kinds)]
 
     def one_seed(a0, a1, keys, human_seat):
         E = keys.shape[0]
@@ -165,7 +173,7 @@ def make_play(env, cfg, nets, kinds: tuple[str, str]):
                 k = jax.vmap(lambda kk: jax.random.fold_in(kk, seat + 1))(step_keys)
                 if kind == "robot":  # the partner's view: the recorded state for seat 1, swapped for seat 0
                     view = hist if seat == 1 else hist[..., perm]
-                    a = jax.vmap(robot_act, in_axes=(None, 0, 0, 0))(agent, view, prev[:, 1 - seat], k)
+                    a = jax.vmap(acts[seat], in_axes=(None, 0, 0, 0))(agent, view, prev[:, 1 - seat], k)
                 else:  # its own view
                     view = hist if seat == 0 else hist[..., perm]
                     a = jax.vmap(lambda h, kk: coplay.proxy_action(agent, h, True, kk))(
@@ -278,6 +286,31 @@ def evaluate(s, load, steps: list[int], n: dict | None = None) -> dict:
     }
 
 
+def crossplay(env, robots: dict, episodes: int) -> dict:
+    """The cross-play matrix of learned robots: ``robots`` {label: (cfg, nets, eval params with a seed axis S, the
+    same S for all)}; each ordered pair plays both seats, A in the human agent's slot (reading its partner's view
+    through ``seat_view``), B in the robot's. Returns {A: {B: stats}} (reward and score, mean +- s.e., both seats
+    pooled); the diagonal is each robot's self-play."""
+    out: dict = {}
+    keys = episode_keys(episodes, 5)
+    for a, (cfg_a, nets_a, pa) in robots.items():
+        for b, (cfg_b, nets_b, pb) in robots.items():
+            play = make_play(env, cfg_a, nets_a, ("robot", "robot"), other=(cfg_b, nets_b))
+            r = [jax.tree.map(np.asarray, jax.device_get(play(pa, pb, keys, jnp.asarray(seat, jnp.int32))))
+                 for seat in SEATS]
+            out.setdefault(a, {})[b] = _pool(r[0], r[1], cfg_a.seeds)
+    return out
+
+
+def crossplay_markdown(matrix: dict, name: str = "") -> list[str]:
+    labels = list(matrix)
+    rows = [f"| {name} human's slot \\ robot's slot | " + " | ".join(labels) + " |", "|" + " --- |" * (len(labels) + 1)]
+    for a in labels:
+        cells = [f"{matrix[a][b]['reward']['mean']:.1f} +- {matrix[a][b]['reward']['se']:.1f}" for b in labels]
+        rows.append(f"| {a} | " + " | ".join(cells) + " |")
+    return rows
+
+
 def markdown(fd: dict) -> list[str]:
     """results.md's section of the field's protocol."""
     def cell(d):
@@ -298,4 +331,5 @@ def markdown(fd: dict) -> list[str]:
     return lines
 
 
-__all__ = ["supported", "sizes", "evaluate", "markdown", "Field", "make_play", "seat_samples", "fit_bc", "stats"]
+__all__ = ["supported", "sizes", "evaluate", "markdown", "Field", "make_play", "seat_samples", "fit_bc", "stats",
+           "crossplay", "crossplay_markdown"]

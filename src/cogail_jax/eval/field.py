@@ -169,13 +169,13 @@ def make_play(env, cfg, nets, kinds: tuple[str, str], other: tuple | None = None
             state, hist, prev, ret = carry
             step_keys = jax.vmap(lambda k: jax.random.fold_in(k, t))(keys)
             out = []
-            for seat, (kind, agent) in enumerate(zip(kinds, (a0, a1))):
-                k = jax.vmap(lambda kk: jax.random.fold_in(kk, seat + 1))(step_keys)
-                if kind == "robot":  # the partner's view: the recorded state for seat 1, swapped for seat 0
-                    view = hist if seat == 1 else hist[..., perm]
-                    a = jax.vmap(acts[seat], in_axes=(None, 0, 0, 0))(agent, view, prev[:, 1 - seat], k)
+            for slot, (kind, agent) in enumerate(zip(kinds, (a0, a1))):  # slot 0: the human agent's, 1: the robot's
+                k = jax.vmap(lambda kk: jax.random.fold_in(kk, slot + 1))(step_keys)
+                if kind == "robot":  # its partner's view: the env's observation in the robot's slot, else swapped
+                    view = hist if slot == 1 else hist[..., perm]
+                    a = jax.vmap(acts[slot], in_axes=(None, 0, 0, 0))(agent, view, prev[:, 1 - slot], k)
                 else:  # its own view
-                    view = hist if seat == 0 else hist[..., perm]
+                    view = hist if slot == 0 else hist[..., perm]
                     a = jax.vmap(lambda h, kk: coplay.proxy_action(agent, h, True, kk))(
                         view[:, -(max(coplay.PROXY_LAGS) + 1):], k)
                 out.append(a)

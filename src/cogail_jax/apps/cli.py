@@ -252,6 +252,31 @@ def build_parser() -> argparse.ArgumentParser:
                     "15 for most)")
     pl.add_argument("--seed", type=int, default=0, help="seed of the blind order and the start states")
 
+    co = sub.add_parser("collect", help="two people drive both agents of a task in a web page; every episode is recorded",
+                        description="Serve a page on which two people drive the human agent and the robot agent (two "
+                                    "browsers, or one page with two key sets or two gamepads). The environment steps "
+                                    "at a fixed rate with both people's latest commands; every episode (success or "
+                                    "not) is appended to a demonstration file in the dataset schema, ready for "
+                                    "`cogail train --demos FILE` and `cogail eval --replay-file FILE`. See "
+                                    "docs/collect.md.")
+    co.add_argument("--task", required=True, help="task (a built-in name or my_pkg.my_module:TASK)")
+    co.add_argument("--out", default=None, metavar="FILE.hdf5",
+                    help="where episodes are appended (default: <data folder>/<task>_people.hdf5)")
+    co.add_argument("--port", type=int, default=8766, help="port (default 8766; 0: any free port)")
+    co.add_argument("--lan", action="store_true",
+                    help="listen on the local network (default: this machine only); each seat is then taken with "
+                         "the join code printed at start")
+    co.add_argument("--hz", type=float, default=None, help="env steps per second (default: the task's, 15 for most)")
+    co.add_argument("--max-steps", type=_positive, default=None,
+                    help="end an episode after this many steps (default: the task's episode length)")
+    co.add_argument("--gap", type=float, default=2.0, help="seconds between an episode's end and the next (default 2)")
+    co.add_argument("--hold", type=float, default=0.5,
+                    help="seconds a person's last command is held without news before their agent holds still "
+                         "(default 0.5)")
+    co.add_argument("--leave", type=float, default=5.0,
+                    help="seconds without news after which a seat is free again and the episode ends (default 5)")
+    co.add_argument("--seed", type=int, default=None, help="seed of the start states (default: a random one, recorded)")
+
     b = sub.add_parser("bench", help="throughput table: env-only, Co-GAIL train_step (1 and 3 seeds), brax PPO",
                        description="Env steps/s of the task alone (random actions), of the full Co-GAIL update "
                                    "with 1 and 3 vmapped seeds, and of brax's PPO on the same env and batch; "
@@ -553,6 +578,11 @@ def _dispatch(a) -> int:
 
         return serve(a.run, task=a.task, port=a.port, trials=a.trials, checkpoint=a.checkpoint,
                      max_steps=a.max_steps, hz=a.hz, seed=a.seed)
+    if a.command == "collect":
+        from .collect import serve as collect
+
+        return collect(a.task, out=a.out, port=a.port, lan=a.lan, hz=a.hz, max_steps=a.max_steps, gap=a.gap,
+                       hold=a.hold, leave=a.leave, seed=a.seed)
     if a.command == "bench":
         from .bench import run_from_args
 

@@ -15,9 +15,6 @@ threads only parse requests and wait for it.
 """
 from __future__ import annotations
 
-import base64
-import errno
-import io
 import json
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -36,64 +33,11 @@ from ..eval import rollouts
 from ..eval import protocol
 from ..algo.config import ConfigError, TrainConfig
 from .runs import RunError
+from . import controls
+from .controls import (HELP, HOST, KEYS_2D, KEYS_6D, discrete_action, human_action, human_position,  # noqa: F401
+                       png_data_url, render_frame)
 
-HOST = "127.0.0.1"
 LABELS = "ABCDEFGHIJKLMNOPQRSTUVWXYZ"
-# keyboard (KeyboardEvent.code) -> (index in the human's action, sign)
-KEYS_2D = {"ArrowRight": (0, 1), "KeyD": (0, 1), "ArrowLeft": (0, -1), "KeyA": (0, -1),
-           "ArrowUp": (1, 1), "KeyW": (1, 1), "ArrowDown": (1, -1), "KeyS": (1, -1)}
-# MJX tasks: the human's 6D delta in its base frame (x right, y towards the robot, z up) and the gripper
-KEYS_6D = {**KEYS_2D, "KeyE": (2, 1), "KeyQ": (2, -1), "KeyI": (3, 1), "KeyK": (3, -1),
-           "KeyO": (4, 1), "KeyU": (4, -1), "KeyJ": (5, 1), "KeyL": (5, -1)}
-HELP = {
-    "2d": "move: arrow keys or WASD (gamepad: left stick)\nEnter: start / next trial",
-    "6d": "move: WASD or arrows (forward/back, left/right), E/Q up/down\n"
-          "rotate: I/K pitch, U/O roll, J/L yaw\nSpace: open / close the gripper\n"
-          "gamepad: left stick move, right stick yaw / up-down, A gripper\nEnter: start / next trial",
-}
-
-
-# gamepad: the left stick's direction and the A button as the keys a discrete task's ``play_keys`` name
-PAD_KEYS = {(0, 1): "ArrowRight", (0, -1): "ArrowLeft", (1, 1): "ArrowDown", (1, -1): "ArrowUp"}
-
-
-def discrete_action(size: int, choices: dict, idle: int, keys, axes=(), buttons=()) -> tuple[np.ndarray, bool]:
-    """A discrete human's one-hot action from the pressed keys: the choice of the last pressed key that the task's
-    ``play_keys`` maps (``choices``: key code -> choice), else ``idle`` (e.g. stay); a gamepad's left stick past half
-    way and its A button count as the arrow keys and Space. Returns the action and whether a mapped key was pressed
-    (which starts a trial)."""
-    keys = list(keys)
-    ax = np.zeros(2, np.float32)
-    ax[: min(2, len(axes))] = np.asarray(list(axes)[:2], np.float32)
-    if np.max(np.abs(ax)) > 0.5:
-        i = int(np.argmax(np.abs(ax)))
-        keys.append(PAD_KEYS[(i, 1 if ax[i] > 0 else -1)])
-    if buttons and buttons[0]:
-        keys.append("Space")
-    mapped = [choices[k] for k in keys if k in choices]
-    a = np.zeros(size, np.float32)
-    a[mapped[-1] if mapped else idle] = 1.0
-    return a, bool(mapped)
-
-
-def human_action(size: int, keys, axes=(), gripper: float = 1.0) -> np.ndarray:
-    """The human's action from the pressed keys (``KeyboardEvent.code`` names) and gamepad axes (standard
-    mapping: left stick 0/1, right stick 2/3; up is negative). 2 dims: (dx, dy); 7 dims: 6D delta + gripper."""
-    a = np.zeros(size, np.float32)
-    table = KEYS_2D if size == 2 else KEYS_6D
-    for k in keys:
-        if k in table:
-            i, sign = table[k]
-            a[i] += sign
-    ax = np.zeros(4, np.float32)
-    ax[: min(4, len(axes))] = np.asarray(list(axes)[:4], np.float32)
-    a[0] += ax[0]
-    a[1] -= ax[1]
-    if size > 2:
-        a[5] -= ax[2]  # right stick: yaw and up / down
-        a[2] -= ax[3]
-        a[6] = 1.0 if gripper >= 0 else -1.0
-    return np.clip(a, -1.0, 1.0)
 
 
 def robot_key(env, rng: np.random.Generator) -> tuple:
@@ -176,29 +120,6 @@ def load_policy(run_dir: str | Path, cfg: TrainConfig, label: str, which: str = 
 
 
 # ---------------------------------------------------------------------------------------------- the game
-def render_frame(env, state) -> np.ndarray:
-    """The task's cameras (``Task.cameras``) side by side, or its one view."""
-    from cogail_envs import get_task
-
-    cameras = get_task(env.name).cameras
-    if not cameras:
-        return env.render(state, width=448, height=448)
-    return np.concatenate([env.render(state, width=400, height=300, camera=c) for c in cameras], axis=1)
-
-
-def png_data_url(img: np.ndarray) -> str:
-    from PIL import Image
-
-    buf = io.BytesIO()
-    Image.fromarray(np.asarray(img, np.uint8)).save(buf, format="PNG", compress_level=1)
-    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
-
-
-def human_position(env, state) -> list[float]:
-    """Where the human agent is (the env's ``human_position``: e.g. map units, or a TCP in metres)."""
-    return [round(float(v), 4) for v in np.asarray(env.human_position(state))]
-
-
 class Game:
     """One person's study: trials cycle through the policies in shuffled blocks; each finished trial is
     appended to the trials file. Not thread-safe: call it from one thread."""
@@ -301,7 +222,8 @@ class App:
             keys, text = sorted({*task.play_keys, "Enter"}), task.play_help + "\nEnter: start / next trial"
         else:
             six = env.human_action_size > 2
-            keys, text = sorted({*(KEYS_6D if six else KEYS_2D), "Space", "Enter"}), HELP["6d" if six else "2d"]
+            keys = sorted({*(KEYS_6D if six else KEYS_2D), "Space", "Enter"})
+            text = HELP["6d" if six else "2d"] + "\nEnter: start / next trial"
         return {"task": env.name, "hz": self.hz, "help": text, "keys": keys, "discrete": bool(
                 getattr(env, "human_action_discrete", False)),
                 "policies": len(self.game.policies), "legend": [list(x) for x in task.legend]}
@@ -383,14 +305,7 @@ class Handler(BaseHTTPRequestHandler):
 
 def bind(port: int) -> ThreadingHTTPServer:
     """Listen on 127.0.0.1:port (0: any free port); ``RunError`` with the fix when the port is taken."""
-    try:
-        server = ThreadingHTTPServer((HOST, port), Handler)
-    except OSError as e:
-        if e.errno == errno.EADDRINUSE:
-            raise RunError(f"port {port} is in use: pass --port N with a free port (or --port 0 to pick one)")
-        raise RunError(f"cannot listen on {HOST}:{port} ({e.strerror}): pass another --port")
-    server.daemon_threads = True
-    return server
+    return controls.bind(port, Handler)
 
 
 def open_study(runs: list[str | Path], task: str | None = None, port: int = 8765, trials: str | Path | None = None,

@@ -53,8 +53,8 @@ def server(run_dir):
     play.close(srv)
 
 
-@pytest.fixture(scope="module")
-def browser():
+def make_browser():
+    """A headless Chromium driven by selenium (each has its own profile: its own localStorage)."""
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     driver_path = shutil.which("chromedriver")
     if not (chromium and driver_path):
@@ -68,7 +68,12 @@ def browser():
     for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu",
                 "--window-size=1200,800"):
         opts.add_argument(arg)
-    driver = webdriver.Chrome(service=Service(driver_path), options=opts)
+    return webdriver.Chrome(service=Service(driver_path), options=opts)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    driver = make_browser()
     yield driver
     driver.quit()
 

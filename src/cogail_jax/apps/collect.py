@@ -15,9 +15,10 @@ Protocol (JSON over HTTP; every refusal is a status code and ``{"error": one sen
 
     GET  /api/config                       the task, its keys and help per seat, which seats are taken
     POST /api/join   {seat, code?, id?}    -> {token, seat, id}; 409 taken, 403 wrong or missing code (lan)
-    POST /api/input  {token, seq, keys?, axes?, buttons?, gripper?, action?, start?, device?}
+    POST /api/input  {token, seq, keys?, axes?, buttons?, gripper?, action?, start?, device?, episode?}
                                            the seat's current command (the full key state; ``action``: a raw
-                                           action vector, for scripted clients and other controllers)
+                                           action vector, for scripted clients and other controllers; ``episode``:
+                                           the episode the page showed, a command for another one is dropped)
     GET  /api/view?token=T&after=N         long poll: the first frame newer than N (at most ~1 s later)
     POST /api/end | /api/next | /api/leave {token}
 
@@ -99,7 +100,7 @@ class Seat:
     gripper: float = 1.0
     action: np.ndarray | None = None
     start: bool = False
-    devices: set = field(default_factory=set)
+    device: str = ""  # what sent the latest input that acted: keyboard, gamepad or controller ("" idle)
 
     def take(self, client: str) -> str:
         self.token, self.client, self.last_seen = secrets.token_urlsafe(18), client, time.monotonic()
@@ -108,7 +109,7 @@ class Seat:
 
     def clear(self) -> None:
         self.heard, self.seq, self.keys, self.tapped, self.axes, self.buttons = -math.inf, 0, frozenset(), set(), [], []
-        self.gripper, self.action, self.start, self.devices = 1.0, None, False, set()
+        self.gripper, self.action, self.start, self.device = 1.0, None, False, ""
 
     def release(self) -> None:
         self.token, self.client = None, ""
@@ -140,9 +141,12 @@ def parse_input(body: dict, size: int, discrete: bool) -> dict:
     device = body.get("device", "keyboard")
     if device not in DEVICES:
         raise Refused(400, f"'device' must be one of {', '.join(DEVICES)}")
+    episode = body.get("episode")
+    if episode is not None and (isinstance(episode, bool) or not isinstance(episode, int)):
+        raise Refused(400, "'episode' must be an integer (the episode the command is meant for)")
     action = body.get("action")
     if action is not None:
-        a = _numbers(body, "action", size, -1.0, 1.0)
+        a = _numbers(body, "action", 256, -1.0, 1.0)
         if len(a) != size:
             raise Refused(400, f"'action' must hold {size} numbers (this seat's action size), got {len(a)}")
         action = np.asarray(a, np.float32)
@@ -150,7 +154,7 @@ def parse_input(body: dict, size: int, discrete: bool) -> dict:
             action = np.eye(size, dtype=np.float32)[int(np.argmax(action))]
     return {"keys": frozenset(keys), "seq": seq, "gripper": float(gripper), "device": device, "action": action,
             "axes": _numbers(body, "axes", 8), "buttons": _numbers(body, "buttons", 32, 0.0, 1.0),
-            "start": bool(body.get("start", False))}
+            "start": bool(body.get("start", False)), "episode": episode}
 
 
 # ---------------------------------------------------------------------------------------------- the table
@@ -232,10 +236,14 @@ class Collector:
             return
         m = jax.device_get(self.state.metrics)
         success = float(m["success"]) > 0
-        self.status, self.end = ("success" if success else "failure"), end
-        self.next_at = time.monotonic() + self.settings.gap
-        if not self.obs:
-            return
+        try:
+            if self.obs:
+                self._append(m, success, end)
+        finally:  # the pages see the end once the episode is in the file
+            self.status, self.end = ("success" if success else "failure"), end
+            self.next_at = time.monotonic() + self.settings.gap
+
+    def _append(self, m: dict, success: bool, end: str) -> None:
         hz = (len(self.step_times) - 1) / (self.step_times[-1] - self.step_times[0]) if len(self.step_times) > 1 else 0
         attrs = {"collector": "cogail collect", "success": int(success), "end": end,
                  "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "episode": self.episode,
@@ -252,7 +260,8 @@ class Collector:
             return
         self.saved += 1
         self.recorded += 1
-        self.log(f"episode {self.episode}: {len(self.obs)} steps, {self.status} ({end}), appended to {self.out} "
+        self.log(f"episode {self.episode}: {len(self.obs)} steps, {'success' if success else 'failure'} ({end}), "
+                 f"appended to {self.out} "
                  f"({self.saved} episodes)")
 
     def _render(self) -> None:
@@ -293,7 +302,8 @@ class Collector:
             if act is not None:
                 for s in SEATS:
                     self.applied[s] = self.seats[s].seq
-                    self.devices[s] |= self.seats[s].devices
+                    if act[s][1] and self.seats[s].device:  # what this step's deliberate commands came from
+                        self.devices[s].add(self.seats[s].device)
         changed = False
         if request in ("ended", "left") and self.status == "running":
             self._finish(request)
@@ -394,16 +404,18 @@ class Collector:
             msg = parse_input(body, agent_size, bool(getattr(self.env, f"{seat.name}_action_discrete", False)))
             if msg["seq"] < seat.seq:  # an older message overtaken by a newer one
                 return {"ok": True, "stale": True}
+            if msg["episode"] is not None and msg["episode"] != self.episode:  # meant for an episode that is over
+                return {"ok": True, "stale": True}
             seat.heard = time.monotonic()
             seat.seq, seat.keys, seat.axes, seat.buttons = msg["seq"], msg["keys"], msg["axes"], msg["buttons"]
             seat.tapped |= set(msg["keys"])
             seat.gripper, seat.action = msg["gripper"], msg["action"]
             if msg["action"] is not None:
-                seat.devices.add("controller")
+                seat.device = "controller"
                 if len(msg["action"]) >= 7 and not getattr(self.env, f"{seat.name}_action_discrete", False):
                     seat.gripper = float(msg["action"][6])
             elif msg["keys"] or any(msg["axes"]) or any(msg["buttons"]):
-                seat.devices.add(msg["device"])
+                seat.device = msg["device"]
             seat.start = seat.start or msg["start"]
         return {"ok": True}
 

@@ -1,7 +1,8 @@
 """Table-Carry (pure JAX): two agents carry a long table through a door. A worked example of a task defined
 outside ``cogail_envs``: the env (:mod:`.env`), its scripted team (:mod:`.team`) and settings (:mod:`.config`).
 
-Use it as ``--task examples.table_carry:TASK`` from the repository's root (``docs/tasks.md``).
+Use it as ``--task examples.table_carry:TASK`` from the repository's root (``docs/tasks.md``); two people record
+demonstrations of it with ``cogail collect --task examples.table_carry:TASK`` (``docs/collect.md``).
 """
 from cogail_envs.registry import Task
 

@@ -221,7 +221,7 @@ def run_one(task, method, mix, seeds, out: Path, extra: dict, every: int = 1,
     train_loop.train_run(cfg, run, resume=resume, progress=False, keep=kept,
                          on_compiled=prep.start if prep else None)
     res = eval_runner.eval_run(run, progress=False, every=every, robustness=True, ckpt_batch=ckpt_batch, memory=kept,
-                               extra_sets=sets, prepared=prep, coplay=True, field=True)
+                               extra_sets=sets, prepared=prep, coplay=True)
     info = json.loads((run / "run_info.json").read_text()) if (run / "run_info.json").is_file() else {}
     return {**{k: res[k] for k in KEEP if k in res}, "config_hash": config_hash(cfg), "run": str(run),
             "eval_every": every, "commit": info.get("git_commit"), "dirty": info.get("git_dirty"), "sets": extra}

@@ -48,6 +48,7 @@ def test_h_proxy_sees_only_the_test_pairs(people, monkeypatch):
     fitted = []
     monkeypatch.setattr(field, "fit_bc", lambda x, y, steps, seed: fitted.append((x, y, seed)) or len(fitted) - 1)
     monkeypatch.setattr(field, "accuracy", lambda *a: 0.0)
+    monkeypatch.setattr(field, "models_path", lambda *a: None)  # fitted here, not read from an earlier test's
     s = types.SimpleNamespace(env=env, cfg=TrainConfig(task="overcooked"), files={k: str(v) for k, v in files.items()},
                               nets=None)
     f = field.Field(s, {"episodes": 1, "select_episodes": 1, "bc_steps": 1})
@@ -101,3 +102,54 @@ def test_two_bc_players_play_the_game(people):
     assert field.accuracy(bc, x, y) > 0.5
     st = field.stats(out[0], (0,))
     assert st["episodes"] == 4 and st["reward"]["se"] >= 0
+
+
+def test_bc_models_are_fitted_once_per_splits(people, monkeypatch, tmp_path):
+    """The first run on a task's splits fits the BC models and measures H_proxy's quality; a later run on the same
+    splits reads both (nothing fitted, nothing played); other splits get their own."""
+    env, files = people
+    monkeypatch.setenv("COGAIL_CACHE", str(tmp_path))
+    s = types.SimpleNamespace(env=env, cfg=TrainConfig(task="overcooked"), files={k: str(v) for k, v in files.items()},
+                              nets=None)
+    n = {"episodes": 2, "select_episodes": 1, "bc_steps": 20}
+    first = field.Field(s, n)
+    q = first.proxy_quality()
+    assert first.path.is_file() and first.path.parent.parent == tmp_path
+    monkeypatch.setattr(field, "fit_bc", lambda *a: pytest.fail("fitted again"))
+    monkeypatch.setattr(field.Field, "play", lambda *a, **k: pytest.fail("played again"))
+    again = field.Field(s, n)
+    assert again.proxy_quality() == q
+    for a, b in zip(jax.tree.leaves(first.h_proxy), jax.tree.leaves(again.h_proxy)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    swapped = {**s.files, "validation": s.files["train"], "train": s.files["validation"]}
+    assert field.models_path(swapped, n) != first.path
+
+
+def test_selection_plays_checkpoints_side_by_side_as_one_at_a_time(people, monkeypatch):
+    """Selection's checkpoints played together give each the figure it gets alone (same draws, no mixing of
+    checkpoints or seeds), with the last batch padded."""
+    env, files = people
+    monkeypatch.setattr(field, "SELECT_BATCH", 2)
+    a = field.split_arrays(files["validation"], env)
+    x, y, _ = field.seat_samples(env, a["obs"], a["ah"], a["ar"], a["length"])
+    partner = field.fit_bc(x, y, 50, 0)
+    calls = []
+
+    class Sim(field.Field):  # a robot that is a BC model at a temperature: distinct checkpoints, distinct play
+        def __init__(self):
+            self.s = types.SimpleNamespace(cfg=TrainConfig(task="overcooked", seeds=(1, 2)), env=env)
+            self.n, self.bc_validation = {"select_episodes": 3}, partner
+
+        def play(self, a0, a1, kinds, episodes, salt, human_seat=0):
+            calls.append(a1["t"].shape[0])
+            scale = np.asarray(a1["t"])[:, None]  # (robot x seed, 1)
+            keys = np.asarray(field.episode_keys(episodes, salt + human_seat))[:, 0][None].astype(np.float64)
+            return {"reward": scale * keys % 97.0}
+
+    robots = [{"t": np.full((2,), float(t)), "code": np.ones(2)} for t in (1, 2, 3)]
+    batched = Sim().select(robots)
+    monkeypatch.setattr(field, "SELECT_BATCH", 1)
+    calls_batched = list(calls)
+    alone = Sim().select(robots)
+    np.testing.assert_allclose(batched, alone)
+    assert len(set(batched)) == 3 and calls_batched == [4, 4, 4, 4]  # 2 batches x 2 seats, the last padded

@@ -105,3 +105,24 @@ def test_crossplay_of_two_robots(oc_run):
     assert all(c == cells[0] for c in cells) and cells[0]["episodes"] == 2 * 2  # 2 episodes x 2 seats (1 seed)
     assert cells[0]["reward"]["mean"] == 20 * cells[0]["score"]["mean"]
     assert "| a |" in "\n".join(field.crossplay_markdown(m))
+
+
+def test_coplay_on_a_people_task_is_the_fields_protocol(oc_run):
+    """`cogail eval` with co-play on a task learned from people runs the field's protocol in its place: H_proxy and
+    the training pairs' clone with the robot in both seats, self-play, selection over every checkpoint, H_proxy's
+    quality; no co-play of its own."""
+    from cogail_jax.apps import eval_runner
+
+    res = eval_runner.eval_run(oc_run, progress=False, coplay=True)
+    assert "coplay" not in res
+    f = res["field"]
+    n = f["protocol"]["episodes_per_seed_and_seat"]
+    for partner in ("h_proxy", "bc_train"):
+        assert f[partner]["seat0"]["episodes"] == f[partner]["seat1"]["episodes"] == n  # one seed
+        assert f[partner]["both"]["episodes"] == 2 * n
+        assert f[partner]["both"]["reward"]["mean"] == 20 * f[partner]["both"]["score"]["mean"]
+    assert f["self_play"]["episodes"] == 2 * n
+    assert set(f["selected"]["validation_reward"]) == set(res["checkpoints"])  # every checkpoint played
+    q = f["proxy_quality"]
+    assert q["with_itself"]["episodes"] == q["with_copy"]["episodes"] == n  # two clones, no seed axis
+    assert 0.0 <= q["accuracy_train_samples"] <= 1.0

@@ -95,11 +95,9 @@ def _add_coplay_args(p, prefix: str) -> None:
                    help=prefix + "also closed-loop co-play (default on): the robot at the reported checkpoints, and "
                         "the task's scripted robot as reference, with a reacting human (the task's scripted human "
                         "and its variations, seeing only the state; a human proxy behaviour-cloned on the test split); "
-                        "results.json's coplay, RUN/coplay.png")
-    p.add_argument("--field", action="store_true",
-                   help=prefix + "also the field's protocol on a task learned from people (Overcooked): H_proxy, a BC "
-                        "model of the test pairs, with the robot in both seats, selection with the validation pairs' "
-                        "(docs/evaluation.md); results.json's field. `make paper` turns it on")
+                        "results.json's coplay, RUN/coplay.png; on a task learned from people (Overcooked) the field's "
+                        "protocol instead: H_proxy, a BC model of the test pairs, with the robot in both seats, "
+                        "selection with the validation pairs' (docs/evaluation.md); results.json's field")
     p.add_argument("--coplay-episodes", type=_positive, default=None, metavar="N",
                    help="co-play episodes per partner and robot (default 64 on an accelerator, 4 on a CPU)")
 
@@ -540,7 +538,7 @@ def _dispatch(a) -> int:
         if evaluates:
             res = eval_run(run, progress=not a.no_progress, robustness=a.robustness, memory=kept,
                            extra_curves=a.extra_curves, prepared=prep, coplay=a.coplay,
-                           coplay_episodes=a.coplay_episodes, field=a.field)
+                           coplay_episodes=a.coplay_episodes)
             print((Path(run) / "results.md").read_text())
             del res
             if a.keep_policies == "reported":
@@ -567,7 +565,7 @@ def _dispatch(a) -> int:
         else:
             eval_run(a.run, progress=not a.no_progress, every=a.every, extra_sets=sets, ckpt_batch=a.ckpt_batch,
                      robustness=a.robustness, extra_curves=a.extra_curves, coplay=a.coplay,
-                     coplay_episodes=a.coplay_episodes, field=a.field)
+                     coplay_episodes=a.coplay_episodes)
         print((Path(a.run) / "results.md").read_text())
         for name, f in sets.items():
             out = replay_results_dir(a.run, name)

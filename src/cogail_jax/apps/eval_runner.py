@@ -221,8 +221,7 @@ def eval_extra_sets(run_dir: str | Path, extra_sets: dict[str, str | Path]) -> d
 def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_file: str | Path | None = None,
              extra_sets: dict[str, str | Path] | None = None, ckpt_batch: int | None = None,
              robustness: bool = False, memory: dict | None = None, extra_curves: bool = False,
-             prepared: EvalInputs | None = None, coplay: bool = False, coplay_episodes: int | None = None,
-             field: bool = False) -> dict:
+             prepared: EvalInputs | None = None, coplay: bool = False, coplay_episodes: int | None = None) -> dict:
     """Evaluate every checkpoint of a run; write results.json / results.md and figures into the run dir.
 
     Every checkpoint and seed is evaluated on the test split (replay, interpolation, latent codes) and on the
@@ -256,10 +255,10 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     ``coplay``: also closed-loop co-play (:mod:`cogail_jax.eval.coplay`): the learned robot at the selected and the
     paper-protocol replay checkpoints, and the task's scripted robot as reference, each with every partner (the
     scripted human, each of its variations, a human proxy behaviour-cloned on the test split), ``coplay_episodes``
-    episodes per partner (default ``coplay.default_episodes()``); results.json's ``coplay``, RUN/coplay.png.
-
-    ``field``: also the field's protocol (:mod:`cogail_jax.eval.field`) where the task supports it (people's data,
-    both seats): results.json's ``field``.
+    episodes per partner (default ``coplay.default_episodes()``); results.json's ``coplay``, RUN/coplay.png. On a
+    task learned from people (``field.supported``: people's data, both seats) it is the field's protocol instead
+    (:mod:`cogail_jax.eval.field`: the robot with H_proxy, a behaviour clone of the test pairs, in both seats, at
+    the checkpoint selected with the validation pairs' clone): results.json's ``field``.
 
     ``prepared``: the run's ``EvalInputs`` made already, or the ``EvalPrep`` making them while training runs (waited
     for in the eval phase's set-up); its extra sets and ``extra_curves`` then stand for the arguments'.
@@ -296,10 +295,10 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
         with part_clock("extra_sets"):
             if sets and not inp.extra_curves:
                 res["extra_sets"] = _replay_extra_sets(s, store, res, sets, memory, eps, inp.replay_fn)
-        if coplay:
+        if coplay and not field_eval.supported(s.env):
             with part_clock("coplay"):
                 res["coplay"] = _coplay(s, store, res, memory, coplay_episodes, inp.coplay)
-        if field and field_eval.supported(s.env):  # a task learned from people: the field's protocol
+        elif coplay:  # a task learned from people: the field's protocol
             with part_clock("field"):
                 res["field"] = field_eval.evaluate(s, lambda st: _checkpoint_params(store, memory, st), steps)
     with clock("write"):
@@ -391,7 +390,7 @@ def _compile_eval(inp: EvalInputs, struct: dict, checkpoints: int, coplay: tuple
         if inp.eps and not inp.extra_curves:
             compiling.append(pool.submit(inp.replay_fn.lower(struct["params"], struct["norm"],
                                                              _extra_batch(inp.s, inp.eps)[0]).compile))
-        if coplay is not None:
+        if coplay is not None and not field_eval.supported(inp.s.env):
             p = coplay_eval.prepare(inp.s, coplay[0])
             compiling.append(pool.submit(p.run.lower(struct["params"], struct["norm"], p.proxy, p.batch).compile))
             inp.coplay = p

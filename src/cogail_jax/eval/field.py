@@ -21,13 +21,17 @@ of them from fixed keys, so the same data give the same models. One compiled pro
 """
 from __future__ import annotations
 
+import hashlib
+import json
 import math
+import os
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..algo import actions
+from ..algo import actions, networks
 from . import coplay
 
 FIELD_SEED = 1357  # episode e of a call starts from fold_in(PRNGKey(FIELD_SEED + call's salt), e)
@@ -133,12 +137,11 @@ def make_play(env, cfg, nets, kinds: tuple[str, str], other: tuple | None = None
     one program for both seats; episode e's from
     ``keys[e]``); the agent in the human's slot (``agent0``) and in the robot's (``agent1``) each a learned robot
     (``{"params", "norm"}`` with a leading seed axis S, vmapped) or a BC model (``coplay.Proxy``, the same for every
-    seed), as ``kinds`` says ("robot" or "bc"). The env's observation is the human slot's view: a BC model reads its
+    seed), as ``kinds`` says ("robot" or "bc"); a robot is :func:`robot`'s dict, whose ``code`` (0 or 1 per seed)
+    says whether it acts on psi's code, so robots of every preset with the same networks share one program. The env's observation is the human slot's view: a BC model reads its
     own view, a robot its partner's (as it was trained), the other slot's through ``seat_view``. ``other``: ``(cfg,
     nets)`` of the robot in the robot's slot where it is another run's (cross-play; default: ``cfg``'s and
     ``nets``')."""
-    from .rollouts import make_robot_step
-
     perm = jnp.asarray(np.asarray(env.seat_view))
     Ah, T = env.human_action_size, env.max_episode_steps
     slot_cfgs = (cfg, cfg if other is None else other[0])
@@ -146,19 +149,19 @@ def make_play(env, cfg, nets, kinds: tuple[str, str], other: tuple | None = None
     Ks = [c.history if c is not None and k == "robot" else 0 for c, k in zip(slot_cfgs, kinds)]
     H = max(*Ks, max(coplay.PROXY_LAGS))
 
-    def robot_fn(c, n, K):
-        psi_code, _ = make_robot_step(c, env, n)
-        actor = n["actor"].apply
+    def robot_fn(n, K):
+        psi, actor = n["psi"].apply, n["actor"].apply
 
         def robot_act(agent, view_hist, prev_partner, key):  # one episode: the robot reads its partner's view
-            z = psi_code(agent["params"], agent["norm"], view_hist[-(K + 1):], prev_partner)
-            obs = (view_hist[-1] - agent["norm"]["mean"]) / agent["norm"]["std"]
-            mean, _ = actor(agent["params"]["actor"], obs, z)
+            norm = agent["norm"]  # as the replay protocol's robot (rollouts.make_robot_step), its code switch data
+            h = networks.history_input(norm, view_hist[-(K + 1):])
+            z = psi(agent["params"]["psi"], jnp.concatenate([h, prev_partner])) * agent["code"]
+            mean, _ = actor(agent["params"]["actor"], networks.normalize(norm, view_hist[-1]), z)
             return actions.agent_act(True, mean[Ah:], key)
 
         return robot_act
 
-    acts = [robot_fn(c, n, K) if k == "robot" else None for c, n, K, k in zip(slot_cfgs, slot_nets, Ks, kinds)]
+    acts = [robot_fn(n, K) if k == "robot" else None for n, K, k in zip(slot_nets, Ks, kinds)]
 
     def one_seed(a0, a1, keys, human_seat):
         E = keys.shape[0]
@@ -199,6 +202,16 @@ def episode_keys(n: int, salt: int) -> jax.Array:
     return jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(FIELD_SEED + salt), i))(jnp.arange(n))
 
 
+def robot(cfg, evalp: dict) -> dict:
+    """A learned robot as :func:`make_play` takes it, from a checkpoint's evaluation parameters ``evalp``
+    (``{"params", "norm"}``, a leading seed axis): its actor, psi, normaliser and ``code`` (per seed: 1 where the
+    preset acts on psi's code, else 0)."""
+    p = evalp["params"]
+    seeds = jax.tree.leaves(p["actor"])[0].shape[0]
+    return {"params": {"actor": p["actor"], "psi": p["psi"]}, "norm": evalp["norm"],
+            "code": jnp.full((seeds,), 1.0 if cfg.use_code else 0.0, jnp.float32)}
+
+
 def stats(out: dict, seeds) -> dict:
     """Mean, standard error (over every episode) and per-seed means of ``reward`` and ``score`` ((S, E) arrays)."""
     res = {}
@@ -214,28 +227,84 @@ def _pool(a: dict, b: dict, seeds) -> dict:
     return stats({k: np.concatenate([np.asarray(a[k]), np.asarray(b[k])], 1) for k in ("reward", "score")}, seeds)
 
 
+def _stack(trees: list):
+    return jax.tree.map(lambda *x: jnp.concatenate(x, 0), *trees)
+
+
+# ------------------------------------------------------------------------------------------------ BC models, kept
+def models_path(files: dict, n: dict) -> Path | None:
+    """Where the BC models and H_proxy's quality of these splits are kept between runs (every run of a task fits the
+    same ones): a file in the compilation cache's folder named by the splits' contents, the sizes ``n`` and this
+    module's and co-play's code; None without a cache folder."""
+    from ..runtime import xla
+
+    root = xla.compile_cache_dir()
+    if root is None:
+        return None
+    h = hashlib.sha256()
+    for k in ("train", "validation", "test"):
+        h.update(Path(files[k]).read_bytes())
+    for mod in (__file__, coplay.__file__):
+        h.update(Path(mod).read_bytes())
+    h.update(json.dumps({**n, "seed": FIELD_SEED, "backend": jax.default_backend()}, sort_keys=True).encode())
+    return root / "field" / f"{h.hexdigest()[:24]}.npz"
+
+
+def _save(path: Path, models: dict, quality: dict) -> None:
+    flat = {"quality": np.asarray(json.dumps(quality))}
+    for name, m in models.items():
+        flat[f"{name}/mean"], flat[f"{name}/std"] = np.asarray(m.mean), np.asarray(m.std)
+        for i, (w, b) in enumerate(m.layers):
+            flat[f"{name}/w{i}"], flat[f"{name}/b{i}"] = np.asarray(w), np.asarray(b)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
+    np.savez(tmp, **flat)
+    os.replace(tmp, path)
+
+
+def _load(path: Path) -> tuple[dict, dict]:
+    with np.load(path) as z:
+        quality = json.loads(str(z["quality"]))
+        models = {}
+        for name in {k.split("/")[0] for k in z.files if "/" in k}:
+            layers = [(jnp.asarray(z[f"{name}/w{i}"]), jnp.asarray(z[f"{name}/b{i}"]))
+                      for i in range(sum(k.startswith(f"{name}/w") for k in z.files))]
+            models[name] = coplay.Proxy(layers, jnp.asarray(z[f"{name}/mean"]), jnp.asarray(z[f"{name}/std"]))
+    return models, quality
+
+
 class Field:
-    """The programs and BC models of one run's field evaluation (see the module docstring)."""
+    """The programs and BC models of one run's field evaluation (see the module docstring). The BC models and
+    H_proxy's quality are the same for every run on the same splits: made by the first and kept
+    (:func:`models_path`), read by the others."""
 
     def __init__(self, s, n: dict | None = None):
         self.s, self.n = s, dict(n or sizes())
         self.programs: dict = {}
-        env = s.env
         from ..data import sets
 
         files = {**{k: sets.split_path(s.cfg, k) for k in ("train",) if k not in (s.files or {})}, **(s.files or {})}
+        self.path = models_path(files, self.n)
+        if self.path is not None and self.path.is_file():
+            models, self.quality = _load(self.path)
+        else:
+            models, self.quality = self._fit(files), None
+        self.h_proxy, self.bc_train = models["h_proxy"], models["bc_train"]
+        self.bc_validation, self.copy = models["bc_validation"], models["copy"]
+
+    def _fit(self, files: dict) -> dict:
+        env, steps = self.s.env, self.n["bc_steps"]
         splits = {k: split_arrays(files[k], env) for k in ("train", "validation", "test")}
-        steps = self.n["bc_steps"]
         xs = {k: seat_samples(env, v["obs"], v["ah"], v["ar"], v["length"]) for k, v in splits.items()}
-        self.h_proxy = fit_bc(*xs["test"][:2], steps, 0)
-        self.bc_train = fit_bc(*xs["train"][:2], steps, 0)
-        self.bc_validation = fit_bc(*xs["validation"][:2], steps, 0)
+        models = {"h_proxy": fit_bc(*xs["test"][:2], steps, 0), "bc_train": fit_bc(*xs["train"][:2], steps, 0),
+                  "bc_validation": fit_bc(*xs["validation"][:2], steps, 0)}
         x, y, ep = xs["test"]
         held = held_out_episodes(splits["test"]["obs"], env)
-        self.copy = fit_bc(x[~held[ep]], y[~held[ep]], steps, 1)
-        self.quality = {"accuracy_heldout": accuracy(self.copy, x[held[ep]], y[held[ep]]),
-                        "heldout_episodes": int(held.sum()), "samples": int(len(x)),
-                        "accuracy_train_samples": accuracy(self.h_proxy, x, y)}
+        models["copy"] = fit_bc(x[~held[ep]], y[~held[ep]], steps, 1)
+        self.accuracy = {"accuracy_heldout": accuracy(models["copy"], x[held[ep]], y[held[ep]]),
+                         "heldout_episodes": int(held.sum()), "samples": int(len(x)),
+                         "accuracy_train_samples": accuracy(models["h_proxy"], x, y)}
+        return models
 
     def play(self, a0, a1, kinds: tuple[str, str], episodes: int, salt: int, human_seat: int = 0) -> dict:
         if kinds not in self.programs:
@@ -243,19 +312,42 @@ class Field:
         out = self.programs[kinds](a0, a1, episode_keys(episodes, salt), jnp.asarray(human_seat, jnp.int32))
         return jax.tree.map(np.asarray, jax.device_get(out))
 
-    def with_partner(self, robot: dict, partner, episodes: int, salt: int) -> dict:
+    def with_partner(self, robot: dict, partner, episodes: int, salt: int, seeds=None) -> dict:
         """The robot in each seat with a BC ``partner``: {"seat0", "seat1", "both"} stats (seat k: the robot's)."""
-        seeds = self.s.cfg.seeds
+        seeds = self.s.cfg.seeds if seeds is None else seeds
         r0 = self.play(partner, robot, ("bc", "robot"), episodes, salt, human_seat=1)
         r1 = self.play(partner, robot, ("bc", "robot"), episodes, salt, human_seat=0)
         return {"seat0": stats(r0, seeds), "seat1": stats(r1, seeds), "both": _pool(r0, r1, seeds)}
 
+    def select(self, robots: list[dict]) -> list[float]:
+        """Each robot's mean reward over its seeds and both seats with the validation pairs' BC model
+        (``select_episodes`` per seed and seat): ``SELECT_BATCH`` robots side by side in one call (the last call
+        padded with its last robot), so that selection over every checkpoint takes a few calls of one program."""
+        S, e = len(self.s.cfg.seeds), self.n["select_episodes"]
+        size, means = min(SELECT_BATCH, len(robots)), []
+        for i in range(0, len(robots), size):
+            chunk = robots[i:i + size]
+            batch = _stack(chunk + [chunk[-1]] * (size - len(chunk)))
+            r = np.stack([self.play(self.bc_validation, batch, ("bc", "robot"), e, 1, human_seat=seat)["reward"]
+                          for seat in (1, 0)])  # (seat, robot x seed, episode)
+            means += r.reshape(2, size, S, e).mean((0, 2, 3))[:len(chunk)].tolist()
+        return means
+
     def proxy_quality(self) -> dict:
+        if self.quality is not None:
+            return self.quality
         one = (0,)
         e = self.n["episodes"]
         itself = self.play(self.h_proxy, self.h_proxy, ("bc", "bc"), e, 7)
         copy = self.play(self.h_proxy, self.copy, ("bc", "bc"), e, 7)
-        return {**self.quality, "with_itself": stats(itself, one), "with_copy": stats(copy, one)}
+        self.quality = {**self.accuracy, "with_itself": stats(itself, one), "with_copy": stats(copy, one)}
+        if self.path is not None:
+            _save(self.path, {"h_proxy": self.h_proxy, "bc_train": self.bc_train, "bc_validation": self.bc_validation,
+                              "copy": self.copy}, self.quality)
+        return self.quality
+
+
+SELECT_BATCH = 16  # checkpoints played together in selection
 
 
 def evaluate(s, load, steps: list[int], n: dict | None = None) -> dict:
@@ -263,43 +355,60 @@ def evaluate(s, load, steps: list[int], n: dict | None = None) -> dict:
     checkpoint's evaluation parameters: selection over ``steps`` with the validation pairs' BC model, then H_proxy,
     the training pairs' BC model and self-play at the selected checkpoint, and H_proxy's quality."""
     f = Field(s, n)
-    per_ckpt = {}
-    for st in steps:
-        robot = load(st)
-        r = f.with_partner(robot, f.bc_validation, f.n["select_episodes"], 1)
-        per_ckpt[int(st)] = r["both"]["reward"]["mean"]
+    quality = f.proxy_quality()
+    steps = [int(st) for st in steps]
+    per_ckpt = dict(zip(steps, f.select([robot(s.cfg, load(st)) for st in steps])))
     best = max(per_ckpt.values())
     chosen = max(st for st, v in per_ckpt.items() if v == best)
-    robot = load(chosen)
+    bot = robot(s.cfg, load(chosen))
     seeds = s.cfg.seeds
-    sp = _pool(f.play(robot, robot, ("robot", "robot"), f.n["episodes"], 3, 0),
-               f.play(robot, robot, ("robot", "robot"), f.n["episodes"], 3, 1), seeds)
+    sp = _pool(f.play(bot, bot, ("robot", "robot"), f.n["episodes"], 3, 0),
+               f.play(bot, bot, ("robot", "robot"), f.n["episodes"], 3, 1), seeds)
     return {
         "protocol": {"episodes_per_seed_and_seat": f.n["episodes"], "selection_episodes": f.n["select_episodes"],
                      "bc_steps": f.n["bc_steps"], "seed": FIELD_SEED, "score": s.env.score_metric or "success",
                      "horizon": s.env.max_episode_steps},
         "selected": {"checkpoint": int(chosen), "validation_reward": per_ckpt},
-        "h_proxy": f.with_partner(robot, f.h_proxy, f.n["episodes"], 0),
-        "bc_train": f.with_partner(robot, f.bc_train, f.n["episodes"], 2),
+        "h_proxy": f.with_partner(bot, f.h_proxy, f.n["episodes"], 0),
+        "bc_train": f.with_partner(bot, f.bc_train, f.n["episodes"], 2),
         "self_play": sp,
-        "proxy_quality": f.proxy_quality(),
+        "proxy_quality": quality,
     }
+
+
+def _signature(cfg, agent: dict) -> tuple:
+    """What a robot's program depends on: its history and its networks' shapes (not its preset)."""
+    shapes = tuple((str(path), x.shape[1:], str(x.dtype)) for path, x in
+                   jax.tree_util.tree_flatten_with_path({"params": agent["params"], "norm": agent["norm"]})[0])
+    return cfg.history, shapes
 
 
 def crossplay(env, robots: dict, episodes: int) -> dict:
     """The cross-play matrix of learned robots: ``robots`` {label: (cfg, nets, eval params with a seed axis S, the
     same S for all)}; each ordered pair plays both seats, A in the human agent's slot (reading its partner's view
     through ``seat_view``), B in the robot's. Returns {A: {B: stats}} (reward and score, mean +- s.e., both seats
-    pooled); the diagonal is each robot's self-play."""
-    out: dict = {}
+    pooled); the diagonal is each robot's self-play. Robots with the same networks are one group: every pair of
+    two groups plays in one program, all its pairs side by side."""
     keys = episode_keys(episodes, 5)
-    for a, (cfg_a, nets_a, pa) in robots.items():
-        for b, (cfg_b, nets_b, pb) in robots.items():
+    bots = {k: (cfg, nets, robot(cfg, p)) for k, (cfg, nets, p) in robots.items()}
+    groups: dict = {}
+    for label, (cfg, nets, agent) in bots.items():
+        groups.setdefault(_signature(cfg, agent), []).append(label)
+    out: dict = {}
+    for ga in groups.values():
+        for gb in groups.values():
+            (cfg_a, nets_a, _), (cfg_b, nets_b, _) = bots[ga[0]], bots[gb[0]]
+            pairs = [(a, b) for a in ga for b in gb]
+            S = bots[ga[0]][2]["code"].shape[0]
+            A = _stack([bots[a][2] for a, _ in pairs])  # (pairs x seeds, ...)
+            B = _stack([bots[b][2] for _, b in pairs])
             play = make_play(env, cfg_a, nets_a, ("robot", "robot"), other=(cfg_b, nets_b))
-            r = [jax.tree.map(np.asarray, jax.device_get(play(pa, pb, keys, jnp.asarray(seat, jnp.int32))))
+            r = [jax.tree.map(np.asarray, jax.device_get(play(A, B, keys, jnp.asarray(seat, jnp.int32))))
                  for seat in SEATS]
-            out.setdefault(a, {})[b] = _pool(r[0], r[1], cfg_a.seeds)
-    return out
+            for i, (a, b) in enumerate(pairs):
+                part = [{k: x[k][i * S:(i + 1) * S] for k in ("reward", "score")} for x in r]
+                out.setdefault(a, {})[b] = _pool(part[0], part[1], bots[a][0].seeds)
+    return {a: {b: out[a][b] for b in robots} for a in robots}
 
 
 def crossplay_markdown(matrix: dict, name: str = "") -> list[str]:
@@ -331,5 +440,5 @@ def markdown(fd: dict) -> list[str]:
     return lines
 
 
-__all__ = ["supported", "sizes", "evaluate", "markdown", "Field", "make_play", "seat_samples", "fit_bc", "stats",
-           "crossplay", "crossplay_markdown"]
+__all__ = ["supported", "sizes", "evaluate", "markdown", "Field", "make_play", "robot", "seat_samples", "fit_bc",
+           "stats", "crossplay", "crossplay_markdown", "models_path"]

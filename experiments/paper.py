@@ -109,7 +109,11 @@ def validation_robustness_sets(task, mix) -> dict:
 
 
 # ----------------------------------------------------------------------------------------------- staleness
-CODE = (":/src", ":/envs", ":/pyproject.toml")  # what a run's figures depend on (git pathspecs from the top)
+# what a run's figures depend on (git pathspecs from the top): not the apps that serve people or draw episodes (the
+# play and collect pages, their controls, videos), which training and evaluation never import
+CODE = (":/src", ":/envs", ":/pyproject.toml", *(f":(top,exclude)src/cogail_jax/apps/{f}" for f in
+                                               ("play.py", "play.html", "collect.py", "collect.html", "controls.py",
+                                                "video.py")))
 
 
 def task_code(task: str | None = None) -> tuple[str, ...]:

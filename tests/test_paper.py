@@ -188,7 +188,8 @@ def test_a_task_s_rows_go_stale_with_its_own_code_only(tmp_path, monkeypatch):
     that changes its own package, the shared envs/ modules or src/ makes them stale."""
     repo = tmp_path / "repo"
     for rel in ("src/cogail_jax/a.py", "envs/base.py", "envs/fetchq/config.py", "envs/handover/config.py",
-                "envs/seqmanip/config.py", "experiments/paper.py", "pyproject.toml"):
+                "envs/seqmanip/config.py", "experiments/paper.py", "pyproject.toml", "src/cogail_jax/apps/play.py",
+                "src/cogail_jax/apps/collect.py"):
         (repo / rel).parent.mkdir(parents=True, exist_ok=True)
         (repo / rel).write_text("x = 1\n")
     monkeypatch.setattr(paper, "ROOT", repo / "experiments")
@@ -211,6 +212,10 @@ def test_a_task_s_rows_go_stale_with_its_own_code_only(tmp_path, monkeypatch):
     assert paper.code_changed(first, commit("experiments/paper.py"), "fetchq") is True  # (src/ changed since first)
     last = git("rev-parse", "HEAD")
     assert paper.code_changed(git("rev-parse", "HEAD~1"), last, "fetchq") is False  # experiments/ is not code
+    for rel in ("src/cogail_jax/apps/play.py", "src/cogail_jax/apps/collect.py"):  # never run by training or eval
+        before = git("rev-parse", "HEAD")
+        assert paper.code_changed(before, commit(rel)) is False, rel
+        assert paper.code_changed(before, git("rev-parse", "HEAD"), "fetchq") is False, rel
     # a task of your own in the repository: its folder counts for its rows, and for no other task's
     monkeypatch.setattr(paper, "own_task_folder", lambda t: "mine" if t == "mine:TASK" else None)
     (repo / "mine").mkdir()
@@ -644,3 +649,18 @@ def test_the_coplay_table_keeps_the_held_out_poses_apart_from_the_variations():
     cogail, ma_gail, ref = (r.split(" | ") for r in rows[2:5])
     assert cogail[3] == "80.0" and ref[3] == "95.0"  # the worst variation of timing and path, not the slice
     assert cogail[4].startswith("20.0") and ref[4] == "85.0" and ma_gail[4] == "-"
+
+
+def test_training_and_evaluation_never_import_what_the_grid_leaves_out():
+    """The grid's staleness check leaves the people-facing apps out of the code its figures depend on: training,
+    evaluation and the grid itself must not import them."""
+    import subprocess
+    import sys
+
+    left_out = [p.split("apps/")[1].split(".")[0] for p in paper.CODE if "exclude" in p]
+    code = ("import sys; import cogail_jax.apps.train_loop, cogail_jax.apps.eval_runner, cogail_jax.apps.runs; "
+            f"sys.path.insert(0, {str(paper.ROOT)!r}); import paper; "
+            f"print(sorted(m for m in {sorted(set(left_out))!r} if 'cogail_jax.apps.' + m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "[]" and {"play", "collect", "controls", "video"} <= set(left_out)

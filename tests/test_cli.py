@@ -44,12 +44,34 @@ def test_demos_command(tmp_path):
     (["train", "--task", "fetchq", "--run", "RUN", "--set", "nope=1"], "unknown config field"),
     (["train", "--task", "fetchq", "--run", "RUN", "--set", "multi_device=mesh"], "multi_device must be auto, shard_map or per_device"),
 ])
-def test_user_errors_are_one_clear_line(args, needle, tmp_path):
+def test_user_errors_are_one_clear_line(args, needle, tmp_path, capsys):
     args = [a.replace("RUN", str(tmp_path / "run")).replace("MISSING", str(tmp_path / "missing")) for a in args]
-    r = run(*args)
-    assert r.returncode == 2
-    assert needle in r.stderr and "Traceback" not in r.stderr
-    assert len(r.stderr.strip().splitlines()) == 1
+    code, err = in_process(args, capsys)  # the command's own process: test_the_command_answers_in_one_line
+    assert code == 2
+    assert needle in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def in_process(args, capsys):
+    """``cli.main(args)`` in this process (a user error or a bad flag costs no start of a Python): (exit code,
+    stderr)."""
+    capsys.readouterr()
+    try:
+        code = cli.main(list(args))
+    except SystemExit as e:  # argparse's own exit
+        code = e.code
+    return code, capsys.readouterr().err
+
+
+def test_the_command_answers_in_one_line(tmp_path):
+    """The installed command (its own process, ``python -m cogail_jax.apps.cli``): a user error and a bad flag each
+    end with exit status 2 and one line on stderr, nothing else (no warning of a library at start-up); the other
+    cases of both kinds are run in this process (test_user_errors_are_one_clear_line, test_bad_flags)."""
+    r = run("train", "--task", "fetchq", "--run", str(tmp_path / "run"), "--resume")
+    assert r.returncode == 2 and "cannot resume" in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    r = run("train", "--task", "fetchq", "--run", "x", "--num-envs", "0")
+    assert r.returncode == 2 and "Traceback" not in r.stderr and "expected a positive integer, got '0'" in r.stderr
 
 
 @pytest.mark.parametrize("error,answered", [
@@ -78,10 +100,10 @@ def test_a_device_out_of_memory_is_one_clear_line(error, answered, monkeypatch, 
     (["--seeds", "a,b"], "--seeds must be comma-separated integers"),
     (["--num-envs", "0"], "expected a positive integer, got '0'"),
 ])
-def test_bad_flags(args, why):
+def test_bad_flags(args, why, capsys):
     """A bad flag value stops argparse with its own message (a run that is otherwise valid: a task given)."""
-    r = run("train", "--task", "fetchq", "--run", "x", *args)
-    assert r.returncode == 2 and "Traceback" not in r.stderr and why in r.stderr, r.stderr
+    code, err = in_process(["train", "--task", "fetchq", "--run", "x", *args], capsys)
+    assert code == 2 and "Traceback" not in err and why in err, err
 
 
 def test_bench_tiny_writes_json(tmp_path, monkeypatch):

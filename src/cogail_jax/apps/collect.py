@@ -612,7 +612,7 @@ def serve(task: str, out=None, port: int = 8766, lan: bool = False, hz=None, max
         pass
     finally:
         close(server)
-    print(f"stopped: {c.recorded} episodes recorded this session, {c.saved} in {c.out}; train on them with "
+    print(f"stopped: {c.recorded} episodes recorded since it started, {c.saved} in {c.out}; train on them with "
           f"`cogail train --task {c.env.name} --demos {c.out}`", flush=True)
     return 0
 

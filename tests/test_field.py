@@ -36,6 +36,32 @@ def people(tmp_path_factory):
     return env, files
 
 
+@pytest.fixture(scope="module")
+def few_people(people, tmp_path_factory):
+    """The first episodes of each split (train 4, validation 4, test 12: the test split's first held-out window is
+    its 6th), as `cogail data` writes them: BC fits on them take a few seconds (full-batch Adam over every step)."""
+    env, files = people
+    d = tmp_path_factory.mktemp("few-people")
+    out = {}
+    for split, n in (("train", 4), ("validation", 4), ("test", 12)):
+        out[split] = d / f"{split}.hdf5"
+        with h5py.File(files[split], "r") as src, h5py.File(out[split], "w") as dst:
+            dst.attrs.update(src.attrs)
+            dst.attrs["num_demos"] = n
+            data = dst.create_group("data")
+            data.attrs.update(src["data"].attrs)
+            for i in range(n):
+                src.copy(src["data"][f"demo_{i}"], data, f"demo_{i}")
+    held = field.held_out_episodes(field.split_arrays(out["test"], env)["obs"], env)
+    assert held.any() and not held.all()
+    return env, out
+
+
+def _first(a: dict, n: int) -> dict:
+    """A split's arrays (``field.split_arrays``) cut to its first ``n`` episodes."""
+    return {k: v[:n] for k, v in a.items()}
+
+
 def _pairs(path) -> set[int]:
     with h5py.File(path, "r") as f:
         return {int(g.attrs["pair"]) for g in f["data"].values()}
@@ -90,7 +116,7 @@ def test_both_seats_are_played(monkeypatch):
 
 def test_two_bc_players_play_the_game(people):
     env, files = people
-    a = field.split_arrays(files["validation"], env)
+    a = _first(field.split_arrays(files["validation"], env), 2)  # one window in both seats: 1600 samples
     x, y, _ = field.seat_samples(env, a["obs"], a["ah"], a["ar"], a["length"])
     bc = field.fit_bc(x, y, 200, 0)
     out = {}
@@ -104,14 +130,16 @@ def test_two_bc_players_play_the_game(people):
     assert st["episodes"] == 4 and st["reward"]["se"] >= 0
 
 
-def test_bc_models_are_fitted_once_per_splits(people, monkeypatch, tmp_path):
+def test_bc_models_are_fitted_once_per_splits(few_people, monkeypatch, tmp_path):
     """The first run on a task's splits fits the BC models and measures H_proxy's quality; a later run on the same
     splits reads both (nothing fitted, nothing played); other splits get their own."""
-    env, files = people
+    env, files = few_people
     monkeypatch.setenv("COGAIL_CACHE", str(tmp_path))
     s = types.SimpleNamespace(env=env, cfg=TrainConfig(task="overcooked"), files={k: str(v) for k, v in files.items()},
                               nets=None)
-    n = {"episodes": 2, "select_episodes": 1, "bc_steps": 20}
+    # 4 episodes, as test_two_bc_players_play_the_game plays: the two-BC-player program compiles to what that test
+    # compiled (one compilation, from the shared cache)
+    n = {"episodes": 4, "select_episodes": 1, "bc_steps": 20}
     first = field.Field(s, n)
     q = first.proxy_quality()
     assert first.path.is_file() and first.path.parent.parent == tmp_path
@@ -130,7 +158,7 @@ def test_selection_plays_checkpoints_side_by_side_as_one_at_a_time(people, monke
     checkpoints or seeds), with the last batch padded."""
     env, files = people
     monkeypatch.setattr(field, "SELECT_BATCH", 2)
-    a = field.split_arrays(files["validation"], env)
+    a = _first(field.split_arrays(files["validation"], env), 2)
     x, y, _ = field.seat_samples(env, a["obs"], a["ah"], a["ar"], a["length"])
     partner = field.fit_bc(x, y, 50, 0)
     calls = []

@@ -77,14 +77,15 @@ def tiny_cfg(demo_files):
 # (xdist's loadgroup cannot split files more finely here: pytest 9 ignores the group suffix xdist 3.8 appends to
 # the test ids, so every test became a unit of its own and the MJX env modules built their fixtures again.)
 FILE_WEIGHTS = {
-    "test_sharding.py": 118, "test_reliability.py": 73, "test_train.py": 71, "test_cli.py": 68,
-    "test_seqmanip.py": 51, "test_robustness.py": 45, "test_presets.py": 43, "test_handover.py": 42,
-    "test_portable.py": 31, "test_tasks.py": 60, "test_example_task.py": 60, "test_data_step.py": 45, "test_protocol.py": 30, "test_data.py": 25, "test_play.py": 23, "test_fetchq.py": 13,
+    "test_coplay.py": 150, "test_robustness.py": 110, "test_sharding.py": 110, "test_cli.py": 100,
+    "test_train.py": 100, "test_multiprocess.py": 90,  # (two processes at a time: more than its share of the CPU)
+    "test_field.py": 35, "test_presets.py": 62, "test_reliability.py": 60, "test_collect.py": 58, "test_tasks.py": 50,
+    "test_overcooked_play.py": 47, "test_discrete.py": 44, "test_protocol.py": 44, "test_handover.py": 39,
+    "test_seqmanip.py": 36, "test_example_task.py": 33, "test_portable.py": 32, "test_data_step.py": 32,
+    "test_play.py": 26, "test_env_shards.py": 25, "test_pose_slice.py": 23, "test_data.py": 19,
+    "test_segment_sums.py": 18, "test_overcooked.py": 18, "test_programs.py": 16, "test_fetchq.py": 15,
+    "test_paper.py": 9,
 }
-
-FILE_WEIGHTS["test_coplay.py"] = 280  # three tasks' co-play programs compiled (MJX on the CPU)
-FILE_WEIGHTS["test_multiprocess.py"] = 260  # five runs of two processes (or two devices), one after another
-FILE_WEIGHTS["test_env_shards.py"] = 100
 
 
 @pytest.hookimpl(tryfirst=True)

@@ -7,7 +7,10 @@ import textwrap
 # XLA backend compiles with less optimisation (about half the compile time of the MJX chunk on CPU). The
 # collectives come from XLA's SPMD partitioning, which these flags leave alone: the chunk under plain jit sharding
 # propagation (the layout the MJX test guards against) compiles to the same two all-reduces with them as without.
-FAST_COMPILE = "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false"
+# LLVM's expensive passes are off too, as in tests/conftest.py's flags (they act after the HLO is final: the HLO
+# text the collective counts read is the same).
+FAST_COMPILE = ("--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false "
+                "--xla_llvm_disable_expensive_passes=true")
 
 
 def test_two_devices_match_one(tiny_cfg, tmp_path):

@@ -226,8 +226,9 @@ class Collector:
         self.applied = {s: 0 for s in SEATS}
         self.episode += 1
         self.step_times = []
-        for seat in self.seats.values():
-            seat.tapped, seat.start = set(), False
+        for seat in self.seats.values():  # the last episode's commands are not this one's: each seat holds still
+            seat.tapped, seat.start = set(), False  # until its page sends one for this episode
+            seat.heard, seat.keys, seat.action = -math.inf, frozenset(), None
 
     def _finish(self, end: str) -> None:
         """End the running episode and append it to the output file (nothing is recorded for an episode that never

@@ -69,6 +69,8 @@ __all__ = [
     "Gripper", "apply_gripper_action", "physics_step", "rot6d", "tcp_pos", "tcp_mat",
     "tcp_pose_base", "to_base", "finger_gap", "touching", "is_grasping", "body_pos",
     "body_mat", "make_data", "template_data", "quat_to_mat", "yaw_of", "wrap_angle", "FrameRenderer",
+    "rot_x", "rot_y", "rot_z", "pose_mat", "euler_xyz", "grip_angles", "rot_toward", "angles_close", "bar_normal",
+    "object_frame_rotation", "from_rot6d",
 ]
 
 N_GRIPPER_ACT = 7
@@ -447,20 +449,113 @@ def tcp_pose_base(d: mjx.Data, g: Gripper) -> jax.Array:
     return jnp.concatenate([pos, rot6d(mat)])
 
 
+OBJECT_FEATURES = 17  # per agent: object_frame_features' length
+
+
 def object_frame_features(d: mjx.Data, g: Gripper, p_obj: jax.Array, R_obj: jax.Array, half_len: float) -> jax.Array:
-    """(11,) object-centric features of one agent and a bar-like object (long axis: the object's local y):
+    """(17,) object-centric features of one agent and a bar-like object (long axis: the object's local y):
     the bar's two ends relative to the agent's TCP in the agent's base frame (the frame its actions move in;
     3 + 3), the yaw of the TCP relative to the bar, wrapped to [-pi/2, pi/2) (two-finger grippers and bars are
-    symmetric under half a turn), and its magnitude (2), and the TCP's position in the object's frame (3). They
-    look the same wherever the object is and however it is turned, which is what a policy needs to grasp it
+    symmetric under half a turn), and its magnitude (2), the TCP's position in the object's frame (3), and the
+    bar's orientation in the TCP's frame (6D rotation of ``R_tcp^T R_obj``, of the two half-turn-equivalent
+    frames of the bar the nearer one: how the gripper must still turn, about every axis, to hold it square; 6).
+    They look the same wherever the object is and however it is turned, which is what a policy needs to grasp it
     there; the relative yaw is linear, not a point on a circle, so a larger turn than the demonstrations' reads
     as more of the same."""
     B = jnp.asarray(g.base_mat.T)
     tcp = tcp_pos(d, g)
+    R_tcp = tcp_mat(d, g)
     axis = R_obj[:, 1] * half_len
-    dyaw = wrap_angle(yaw_of(tcp_mat(d, g)) - yaw_of(R_obj), np.pi)
+    dyaw = wrap_angle(yaw_of(R_tcp) - yaw_of(R_obj), np.pi)
+    rel = R_tcp.T @ R_obj
+    rel = jnp.where(jnp.trace(rel) >= jnp.trace(rel @ rot_z(np.pi)), rel, rel @ rot_z(np.pi))
     return jnp.concatenate([B @ (p_obj + axis - tcp), B @ (p_obj - axis - tcp),
-                            jnp.stack([dyaw, jnp.abs(dyaw)]), R_obj.T @ (tcp - p_obj)])
+                            jnp.stack([dyaw, jnp.abs(dyaw)]), R_obj.T @ (tcp - p_obj), rot6d(rel)])
+
+
+# ----------------------------------------------------------------------------------------------------
+# Full 3D orientations (the scripted teams present and grasp objects turned about every axis)
+# ----------------------------------------------------------------------------------------------------
+
+def rot_x(a) -> jax.Array:
+    c, s = jnp.cos(a), jnp.sin(a)
+    z, o = jnp.zeros_like(c), jnp.ones_like(c)
+    return jnp.array([[o, z, z], [z, c, -s], [z, s, c]])
+
+
+def rot_y(a) -> jax.Array:
+    c, s = jnp.cos(a), jnp.sin(a)
+    z, o = jnp.zeros_like(c), jnp.ones_like(c)
+    return jnp.array([[c, z, s], [z, o, z], [-s, z, c]])
+
+
+def rot_z(a) -> jax.Array:
+    c, s = jnp.cos(a), jnp.sin(a)
+    z, o = jnp.zeros_like(c), jnp.ones_like(c)
+    return jnp.array([[c, -s, z], [s, c, z], [z, z, o]])
+
+
+def pose_mat(roll, pitch, yaw) -> jax.Array:
+    """A bar's orientation (long axis: local y) from the angles a hand turns it by: ``Rz(yaw) Rx(pitch) Ry(roll)``
+    -- yaw about the vertical, pitch tilting the long axis up or down, roll twisting the bar about its long axis."""
+    return rot_z(yaw) @ rot_x(pitch) @ rot_y(roll)
+
+
+def euler_xyz(R: jax.Array) -> jax.Array:
+    """(a, b, c) with ``R = Rx(a) Ry(b) Rz(c)``: the gripper's hinge angles (rx, ry, rz) that give orientation ``R``
+    in its base frame."""
+    b = jnp.arcsin(jnp.clip(R[0, 2], -1.0, 1.0))
+    a = jnp.arctan2(-R[1, 2], R[2, 2])
+    c = jnp.arctan2(-R[0, 1], R[0, 0])
+    return jnp.stack([a, b, c])
+
+
+def grip_angles(R_world: jax.Array, g: Gripper) -> jax.Array:
+    """The hinge targets (rx, ry, rz) that hold a bar of world orientation ``R_world`` square: the gripper's frame on
+    the bar's, of the two half-turn-equivalent frames (about the bar's normal) the one with the smaller turn about the
+    gripper's own vertical (within its +-1.6 rad joint range)."""
+    Rb = jnp.asarray(g.base_mat.T) @ R_world
+    e0, e1 = euler_xyz(Rb), euler_xyz(Rb @ rot_z(np.pi))
+    return jnp.where(jnp.abs(e0[2]) <= jnp.abs(e1[2]), e0, e1)
+
+
+def rot_toward(d: mjx.Data, g: Gripper, target: jax.Array, gain=0.25, vmax=0.9) -> jax.Array:
+    """The three rotation actions that move the hinge targets (rx, ry, rz) towards ``target`` (proportional, each
+    clipped to +-``vmax``)."""
+    cur = d.ctrl[g.act + 3:g.act + 6]
+    return jnp.clip(gain * (target - cur) / ROT_SCALE, -vmax, vmax)
+
+
+def angles_close(d: mjx.Data, g: Gripper, target: jax.Array, tol: float = 0.05) -> jax.Array:
+    """Whether every hinge target is within ``tol`` of ``target``."""
+    return jnp.all(jnp.abs(d.ctrl[g.act + 3:g.act + 6] - target) < tol)
+
+
+def bar_normal(R_obj: jax.Array) -> jax.Array:
+    """The bar's local z axis, pointing up (the side a gripper comes from to grasp it)."""
+    n = R_obj[:, 2]
+    return jnp.where(n[2] >= 0, n, -n)
+
+
+def from_rot6d(x: jax.Array) -> jax.Array:
+    """A rotation matrix from its 6D form (:func:`rot6d`, the first two columns; Gram-Schmidt), batched over
+    leading axes."""
+    a, b = x[..., 0:3], x[..., 3:6]
+    e1 = a / (jnp.linalg.norm(a, axis=-1, keepdims=True) + 1e-9)
+    b = b - jnp.sum(e1 * b, -1, keepdims=True) * e1
+    e2 = b / (jnp.linalg.norm(b, axis=-1, keepdims=True) + 1e-9)
+    return jnp.stack([e1, e2, jnp.cross(e1, e2)], -1)
+
+
+def object_frame_rotation(R_obj_world: jax.Array, base_mat) -> jax.Array:
+    """(..., 3, 3) the bar's frame in an agent's base frame, of its two half-turn-equivalent frames (about its normal)
+    the one whose x axis points along the base frame's +x, and with its normal up: the frame object-frame actions are
+    expressed in (``TrainConfig.action_frame``)."""
+    R = jnp.einsum("ij,...jk->...ik", jnp.asarray(base_mat).T, R_obj_world)
+    flip_z = R[..., 2, 2] < 0  # normal down: turn half about the long axis (y)
+    R = jnp.where(flip_z[..., None, None], R @ rot_y(np.pi), R)
+    flip = R[..., 0, 0] < 0
+    return jnp.where(flip[..., None, None], R @ rot_z(np.pi), R)
 
 
 def finger_gap(d: mjx.Data, g: Gripper) -> jax.Array:

@@ -52,8 +52,9 @@ class Team:
     ``partner_can_follow``: ``init`` also takes ``variation | variations.FOLLOWING_PARTNER`` (a robot that
     follows the human's apparent strategy under a change of mind, for the training sets' varied humans).
     ``held_out``: ``init`` also takes ``variation | variations.POSE_HELDOUT``, an episode whose object pose or
-    place lies in the team's held-out slice (outside every training, validation and test episode's range; the
-    ``pose_heldout`` evaluation set). ``prompt_robot``: ``init`` also takes ``variation | variations.PROMPT_ROBOT``,
+    place lies in the team's held-out slice (outside every training, validation and test episode's range), and
+    ``variation | variations.pose_slice(axis)`` for each axis of ``held_out_slices`` (``variations.POSE_AXES``):
+    that one degree of freedom beyond its range, the others in range (the ``pose_heldout_<axis>`` evaluation sets). ``prompt_robot``: ``init`` also takes ``variation | variations.PROMPT_ROBOT``,
     a robot at the prompt end of its ranges; the training split's demonstrations are made so.
 
     Closed-loop co-play (:mod:`cogail_jax.eval.coplay`) takes each agent of the team alone, against a partner
@@ -74,6 +75,7 @@ class Team:
     variations: bool = False
     partner_can_follow: bool = False
     held_out: bool = False
+    held_out_slices: tuple = ()
     prompt_robot: bool = False
     human_act: Callable | None = None
     robot_act: Callable | None = None

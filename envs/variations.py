@@ -32,9 +32,13 @@ validation splits, who let go when their own (varied) partner had taken the obje
 slower than theirs.
 
 ``variation | POSE_HELDOUT`` (teams with ``held_out``) draws the episode's object pose and hand-over place from the
-team's held-out slice (the outer band of each range, e.g. the outer third of the carry angle) instead of its
-training range: every default, training, validation and test episode lies in the training range, and the
-``pose_heldout`` evaluation set measures generalisation beyond it. What the ranges are: the team's module.
+team's held-out slices (a band beyond each range, e.g. the outer third of the carry angle) instead of its training
+ranges: every default, training, validation and test episode lies in the training ranges, and the held-out evaluation
+sets measure generalisation beyond them. One slice per degree of freedom the team varies (:data:`POSE_AXES`: the
+object turned about each of its three axes, the place moved along each of the world's, and the place the object is
+put down at): ``variation | pose_slice(axis)`` (the set ``pose_heldout_<axis>``, :func:`slice_name`) moves that one
+beyond its range and keeps every other in range; ``variation | POSE_HELDOUT`` alone (``pose_heldout``) moves one of
+the team's axes, drawn per episode. What the ranges are: the team's module (``Team.held_out_slices``: its axes).
 """
 from __future__ import annotations
 
@@ -47,6 +51,11 @@ FOLLOWING_PARTNER = 8  # flag bit on a variation id: the scripted robot follows 
 POSE_HELDOUT = 16      # flag bit: the human presents the object in the team's held-out pose / place slice
 PROMPT_ROBOT = 32      # flag bit: the scripted robot is the team's most prompt demonstrator (the training split's)
 HELD_OUT = "pose_heldout"  # the name of that slice's evaluation set (teams with ``held_out``)
+# the degrees of freedom a held-out slice can move (roll, pitch, yaw: the object turned about its long axis, tilted,
+# turned about the vertical; x, y, z: the hand-over place moved along the world's axes; place: where the object is put
+# down); their id sits in the bits from SLICE_SHIFT up (0: any of the team's, drawn per episode)
+POSE_AXES = ("roll", "pitch", "yaw", "x", "y", "z", "place")
+SLICE_SHIFT = 6
 
 # salt for the variation's own random draws (fold_in of the team key): the default draws stay as they were
 VARIATION_SALT = 7_777
@@ -62,14 +71,57 @@ def variation_id(variation: int | str | None) -> int:
             return NONE
         if variation == HELD_OUT:
             return POSE_HELDOUT
+        if variation.startswith(HELD_OUT + "_") and variation[len(HELD_OUT) + 1:] in POSE_AXES:
+            return pose_slice(variation[len(HELD_OUT) + 1:])
         if variation not in VARIATIONS:
-            raise ValueError(f"unknown variation {variation!r}: choose one of {', '.join(VARIATIONS)}")
+            raise ValueError(f"unknown variation {variation!r}: choose one of {', '.join(VARIATIONS)}, "
+                             f"{HELD_OUT} or {HELD_OUT}_<axis> with an axis of {', '.join(POSE_AXES)}")
         return VARIATIONS.index(variation) + 1
     return int(variation)
 
 
+def pose_slice(axis: str) -> int:
+    """The variation flags of the held-out slice of one degree of freedom (``axis`` of :data:`POSE_AXES`)."""
+    if axis not in POSE_AXES:
+        raise ValueError(f"unknown pose axis {axis!r}: choose one of {', '.join(POSE_AXES)}")
+    return POSE_HELDOUT | ((POSE_AXES.index(axis) + 1) << SLICE_SHIFT)
+
+
+def slice_name(axis: str) -> str:
+    """The evaluation set of one axis' held-out slice, ``pose_heldout_<axis>``."""
+    pose_slice(axis)
+    return f"{HELD_OUT}_{axis}"
+
+
+def slice_names(axes) -> tuple[str, ...]:
+    return tuple(slice_name(a) for a in axes)
+
+
+def held_axes(key: jax.Array, variation, axes: tuple[str, ...]) -> dict[str, jax.Array]:
+    """Per axis of a team's ``axes`` (its ``held_out_slices``), whether this episode draws it from its held-out slice:
+    none without :data:`POSE_HELDOUT`; the one the variation names (:func:`pose_slice`); with the flag alone, one of
+    ``axes`` drawn with ``key``. Traced ``variation`` welcome."""
+    v = jnp.asarray(variation, jnp.int32)
+    k = (v >> SLICE_SHIFT) & 7  # 0: any, else POSE_AXES index + 1
+    drawn = jnp.asarray([POSE_AXES.index(a) + 1 for a in axes], jnp.int32)[
+        jax.random.randint(key, (), 0, len(axes))]
+    chosen = jnp.where(k == 0, drawn, k)
+    return {a: held_out(v) & (chosen == POSE_AXES.index(a) + 1) for a in axes}
+
+
+def band_draw(key: jax.Array, held, inner: tuple[float, float], below: tuple[float, float] | None = None,
+              above: tuple[float, float] | None = None) -> jax.Array:
+    """A value uniform over ``inner`` (the training range), or where ``held`` over a band beyond it: ``below``
+    (under ``inner[0]``) or ``above`` (over ``inner[1]``), at even odds where both are given."""
+    k1, k2, k3, k4 = jax.random.split(key, 4)
+    a = jax.random.uniform(k1, (), minval=inner[0], maxval=inner[1])
+    outs = [jax.random.uniform(k, (), minval=b[0], maxval=b[1]) for k, b in ((k2, below), (k3, above)) if b]
+    b = outs[0] if len(outs) == 1 else jnp.where(jax.random.bernoulli(k4, 0.5), outs[0], outs[1])
+    return jnp.where(held, b, a)
+
+
 def human_variation(variation) -> jax.Array:
-    """The variation id without its flag bits (:data:`FOLLOWING_PARTNER`, :data:`POSE_HELDOUT`,
+    """The variation id without its flag bits (:data:`FOLLOWING_PARTNER`, :data:`POSE_HELDOUT` and its axis,
     :data:`PROMPT_ROBOT`)."""
     return jnp.asarray(variation, jnp.int32) % FOLLOWING_PARTNER
 
@@ -122,6 +174,7 @@ def paused(starts: jax.Array, lens: jax.Array, t: jax.Array) -> jax.Array:
 
 
 __all__ = ["VARIATIONS", "FOLLOWING_PARTNER", "POSE_HELDOUT", "PROMPT_ROBOT", "HELD_OUT", "human_variation", "held_out",
+           "POSE_AXES", "pose_slice", "slice_name", "slice_names", "held_axes", "band_draw",
            "following", "prompt",
            "slice_draw", "NONE", "SLOW", "FAST", "PAUSES", "DETOUR", "NOISE", "CHANGE_OF_MIND",
            "variation_id", "pace_factor", "pause_schedule", "paused"]

@@ -19,12 +19,12 @@ Action (14): ``concat(a_H, a_R)``, each ``(dx, dy, dz, drx, dry, drz, g)`` in [-
 per unit per step in the agent's base frame (the paper's scale; a scripted demo lasts ~211 steps) and
 the absolute gripper command (-1 closed, +1 open). See :mod:`mjx_common` for details.
 
-Observation (57): human TCP pose in the human base frame (3 + 6D rotation), robot TCP pose in the robot
+Observation (69): human TCP pose in the human base frame (3 + 6D rotation), robot TCP pose in the robot
 base frame (3 + 6), bar position relative to each TCP (each in that agent's base frame, 3 + 3), bar
 orientation (6D, world), finger gaps / 8 cm (2), flags: human grasps, robot grasps, human released (3);
-then the object-centric features of the human and of the robot (11 each, :func:`mjx_common.object_frame_features`:
+then the object-centric features of the human and of the robot (17 each, :func:`mjx_common.object_frame_features`:
 the bar's ends in the agent's base frame relative to its TCP, the TCP's yaw relative to the bar, the TCP in the
-bar's frame), the observation indices :attr:`Handover.object_frame_dims` (a config's ``obs_frame``
+bar's frame, the bar's orientation in the TCP's frame), the observation indices :attr:`Handover.object_frame_dims` (a config's ``obs_frame``
 chooses whether they or the absolute orientations are read).
 
 Rules:
@@ -44,8 +44,8 @@ Rules:
   succeeded through a handover.
 
 The scripted human-human team (:mod:`cogail_envs.handover.team`)
-draws the region from ``mix`` and then a continuous spot inside it, a carry
-yaw, speeds, reaction delays, pauses and action noise (see that module, and its variations of the human).
+draws the region from ``mix`` and then a continuous spot inside it, the bar's
+orientation at the handover (roll, pitch and yaw), speeds, reaction delays, pauses and action noise (see that module, and its variations of the human).
 
 Rendering uses ``mujoco.Renderer`` (EGL offscreen works on headless CPU machines; if ``MUJOCO_GL`` was
 not set before ``mujoco`` was imported, an EGL context is created by hand); if no OpenGL is available it
@@ -130,13 +130,13 @@ class Handover(CollabEnv):
         self._frames = mc.FrameRenderer(self.mj_model)
 
     # the observation layout and the team's pose ranges (part of the version fingerprint of generated data)
-    spec_tag = "obs57-object-frame-poses3-prompt-start10"
-    object_frame_dims = tuple(range(35, 57))
+    spec_tag = "obs69-object-frame-rot-poses6dof-prompt-start10"
+    object_frame_dims = tuple(range(35, 69))
     orientation_dims = (*range(3, 9), *range(12, 18), *range(24, 30))  # the TCPs' and the bar's 6D rotations
 
     @property
     def observation_size(self) -> int:
-        return 57
+        return 69
 
     @property
     def dt(self) -> float:

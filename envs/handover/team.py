@@ -21,17 +21,28 @@ by up to +-0.5 rad and up to 8 cm above or below its home height (everywhere els
 so that the demonstrations show it coming to the bar from further, higher and lower, and more turned than the bar's
 pose alone asks for.
 
-Poses and places (the ranges a person plausibly uses; the robot grasps the bar wherever it is):
+Poses and places (the ranges a person plausibly uses and both grippers reach and grasp; the robot grasps the bar
+however it is presented, aligning its gripper with the bar about all three axes). The bar's orientation at the
+handover is ``Rz(yaw) Rx(pitch) Ry(roll)`` (:func:`mjx_common.pose_mat`): yaw about the vertical, pitch tilting
+its long axis up or down, roll twisting it about its long axis; the spot is the bar centre's position (m, world).
 
-* the bar's yaw at the handover (rad, about the vertical; the robot's gripper turns +-1.6 rad, and bar and
-  gripper are symmetric under half a turn): training range ``|yaw| <= 0.7`` (+-40 degrees), held-out slice
-  ``0.7 < |yaw| <= 1.05`` (the outer third of +-60 degrees);
-* the spot: x over the drawn region (left -0.28..-0.12, middle -0.07..0.07, right 0.12..0.28), y in
-  [-0.06, 0.05], height (bar centre) z in [0.10, 0.30]; held-out slice: z in (0.30, 0.35].
+==========  ==========================================  =====================================================
+axis        training range                              held-out slice (``pose_heldout_<axis>``)
+==========  ==========================================  =====================================================
+roll        ``|roll| <= 0.3`` (17 degrees)               ``0.3 < |roll| <= 0.45`` (26 degrees)
+pitch       ``|pitch| <= 0.3``                           ``0.3 < |pitch| <= 0.45``
+yaw         ``|yaw| <= 0.7`` (40 degrees)                ``0.7 < |yaw| <= 1.05`` (the outer third of +-60)
+x           the region: left -0.28..-0.12, middle        ``0.28 < |x| <= 0.31`` (left or right; a middle draw
+            -0.07..0.07, right 0.12..0.28                moves to one of them at even odds)
+y           [-0.06, 0.05]                                [-0.075, -0.06) or (0.05, 0.085], at even odds
+z           [0.10, 0.30]                                 (0.30, 0.35]
+==========  ==========================================  =====================================================
 
-Every default, training, validation and test episode lies in the training ranges; an episode drawn with
-``variation | POSE_HELDOUT`` (the ``pose_heldout`` evaluation set) has either its yaw or its height (one of
-the two, at even odds) in the held-out slice and the other in range.
+The slices end where the grippers' reach and wrist range do (x +-0.35 m, the robot's TCP at y >= -0.05 m, the
+wrist's tilt +-0.6 rad about each horizontal axis, with pitch and roll together). Every default, training,
+validation and test episode lies in the training ranges; an episode drawn with ``variation | pose_slice(axis)`` has
+that axis in its slice and every other in range, one drawn with ``variation | POSE_HELDOUT`` alone one of the six
+axes (drawn) in its slice.
 
 Variations of the human (:mod:`cogail_envs.variations`; the robot is unchanged):
 
@@ -55,8 +66,8 @@ import numpy as np
 from .. import mjx_common as mc
 from .env import GRASP_OFF, OBJ, REGIONS_X, SPOT_Y
 from ..registry import Team
-from ..variations import (CHANGE_OF_MIND, DETOUR, NOISE, VARIATION_SALT, held_out, human_variation, pace_factor,
-                          pause_schedule, paused, prompt, slice_draw)
+from ..variations import (CHANGE_OF_MIND, DETOUR, NOISE, VARIATION_SALT, band_draw, held_axes, human_variation,
+                          pace_factor, pause_schedule, paused, prompt, slice_draw)
 
 # human phases
 H_WAIT, H_REACH, H_DESCEND, H_CLOSE, H_LIFT, H_CARRY, H_HOLD, H_RETREAT = range(8)
@@ -68,7 +79,11 @@ NUM_PAUSES, PAUSE_START, PAUSE_LEN = 2, (15, 200), (20, 41)
 NOISE_FACTOR = 3.0
 DECOY_STEPS = (35, 61)
 YAW_RANGE, YAW_HELD = (0.0, 0.7), (0.7, 1.05)   # |yaw| of the presented bar: training range, held-out slice
+TILT_RANGE, TILT_HELD = (0.0, 0.3), (0.3, 0.45)  # |pitch| and |roll| of the presented bar (rad)
+X_HELD = (0.28, 0.31)                           # |x| of a left or right spot in the held-out slice
+Y_BELOW, Y_ABOVE = (-0.075, -0.06), (0.05, 0.085)  # the y slice's two bands (SPOT_Y: the range)
 Z_RANGE, Z_HELD = (0.10, 0.30), (0.30, 0.35)    # handover height (bar centre, m)
+SLICES = ("roll", "pitch", "yaw", "x", "y", "z")  # the team's held-out slices (variations.POSE_AXES)
 POSE_SALT = 4_242
 # what the co-play robot (``robot_act``) takes for the human's phases: the bar lifted (its centre this high, the
 # human grasping it), held still (moving less than STILL_SPEED per step for STILL_STEPS steps) once carried away
@@ -113,17 +128,22 @@ class TeamState(NamedTuple):
     # for how many steps it has seen the bar held still
     seen: jax.Array = np.zeros((3,), np.float32)
     still: jax.Array = np.zeros((), np.int32)
+    tilt: jax.Array = np.zeros((2,), np.float32)  # (pitch, roll) of the presented bar (rad)
 
 
 def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamState, jax.Array]:
     ks = jax.random.split(rng, 14)
     u = lambda k, lo, hi, shape=(): jax.random.uniform(k, shape, minval=lo, maxval=hi)  # noqa: E731
     strategy = jax.random.categorical(ks[0], jnp.log(jnp.asarray(mix, jnp.float32) + 1e-12)).astype(jnp.int32) + 1
+    kp = jax.random.split(jax.random.fold_in(rng, POSE_SALT), 6)
+    held = held_axes(kp[0], variation, SLICES)
+    # the x slice lies beyond the left and right regions: a middle draw moves to one of them
+    strategy = jnp.where(held["x"] & (strategy == 2), jnp.where(jax.random.bernoulli(kp[1], 0.5), 1, 3), strategy)
     lo, hi = jnp.asarray(REGIONS_X)[strategy - 1]
-    kp = jax.random.split(jax.random.fold_in(rng, POSE_SALT), 3)
-    held = held_out(variation)
-    held_yaw = jax.random.bernoulli(kp[0], 0.5)  # which of the two the held-out slice moves
-    spot = jnp.stack([u(ks[1], lo, hi), u(ks[2], *SPOT_Y), slice_draw(ks[3], held & ~held_yaw, Z_RANGE, Z_HELD)])
+    x_out = jnp.where(strategy == 1, -1.0, 1.0) * u(kp[2], *X_HELD)
+    spot = jnp.stack([jnp.where(held["x"], x_out, u(ks[1], lo, hi)),
+                      band_draw(kp[3], held["y"], SPOT_Y, Y_BELOW, Y_ABOVE),
+                      slice_draw(ks[3], held["z"], Z_RANGE, Z_HELD)])
     v = human_variation(variation)
     kv = jax.random.split(jax.random.fold_in(rng, VARIATION_SALT), 8)
     pace = pace_factor(v, *PACE)
@@ -149,7 +169,9 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
     ts = TeamState(
         strategy=jnp.stack([strategy, strategy]),
         spot=spot,
-        yaw=slice_draw(ks[4], held & held_yaw, (-YAW_RANGE[1], YAW_RANGE[1]), YAW_HELD, symmetric=True),
+        yaw=slice_draw(ks[4], held["yaw"], (-YAW_RANGE[1], YAW_RANGE[1]), YAW_HELD, symmetric=True),
+        tilt=jnp.stack([slice_draw(k, held[a], (-TILT_RANGE[1], TILT_RANGE[1]), TILT_HELD, symmetric=True)
+                        for k, a in ((kp[4], "pitch"), (kp[5], "roll"))]),
         vmax=vmax.at[0].set(jnp.minimum(vmax[0] * pace, 1.0)),
         amax=amax.at[0].multiply(pace),
         gain=gain.at[0].multiply(pace),
@@ -182,6 +204,14 @@ def world_ctrl(d, g: mc.Gripper) -> jax.Array:
     return jnp.asarray(g.base_pos) + jnp.asarray(g.base_mat) @ d.ctrl[g.act:g.act + 3]
 
 
+def reachable(p, g: mc.Gripper, margin: float = 0.01) -> jax.Array:
+    """``p`` (world) moved into the gripper's workspace, ``margin`` inside its joint limits (a staging point beside a
+    bar held at the edge of the workspace would lie beyond it)."""
+    q = jnp.asarray(g.base_mat.T) @ (p - jnp.asarray(g.base_pos))
+    q = jnp.clip(q, jnp.asarray(g.lo[:3]) + margin, jnp.asarray(g.hi[:3]) - margin)
+    return jnp.asarray(g.base_pos) + jnp.asarray(g.base_mat) @ q
+
+
 def move(p_cmd, target, vel, vmax, amax, gain):
     """Velocity-limited, acceleration-limited proportional step (world frame, action units)."""
     v_des = gain * (target - p_cmd) / mc.POS_SCALE
@@ -192,10 +222,14 @@ def move(p_cmd, target, vel, vmax, amax, gain):
     return vel + dv * jnp.minimum(1.0, amax / (dn + 1e-9))
 
 
-def rot_action(d, g: mc.Gripper, yaw_target, gain=0.25, vmax=0.9):
-    cur = d.ctrl[g.act + 3:g.act + 6]
-    tgt = jnp.stack([0.0, 0.0, yaw_target])
-    return jnp.clip(gain * (tgt - cur) / mc.ROT_SCALE, -vmax, vmax)
+def rot_action(d, g: mc.Gripper, target, gain=0.25, vmax=0.9):
+    """Rotation actions towards the hinge targets ``target`` (rx, ry, rz)."""
+    return mc.rot_toward(d, g, target, gain, vmax)
+
+
+def presented(ts: TeamState) -> jax.Array:
+    """The orientation (world) the human presents the bar at."""
+    return mc.pose_mat(ts.tilt[1], ts.tilt[0], ts.yaw)
 
 
 def _context(env, ts: TeamState, state) -> dict:
@@ -204,13 +238,15 @@ def _context(env, ts: TeamState, state) -> dict:
     h, r = env.human, env.robot
     p_obj, R_obj = env._obj_pos(d), env._obj_mat(d)
     grasp_h = p_obj + R_obj @ jnp.array([0.0, -GRASP_OFF, 0.0])
+    obj_yaw = mc.wrap_angle(mc.yaw_of(R_obj), np.pi)  # bar is symmetric under 180 deg
     return dict(
-        d=d, p_obj=p_obj, R_obj=R_obj,
-        obj_yaw=mc.wrap_angle(mc.yaw_of(R_obj), np.pi),  # bar is symmetric under 180 deg
+        d=d, p_obj=p_obj, R_obj=R_obj, normal=mc.bar_normal(R_obj),
+        obj_yaw=obj_yaw, flat=jnp.stack([0.0, 0.0, obj_yaw]),  # the hinge targets square over a bar lying flat
+        grip_r=mc.grip_angles(R_obj, r),  # the robot's hinge targets square on the bar as it is
         grasp_h=grasp_h.at[2].set(jnp.maximum(grasp_h[2], 0.018)),
         grasp_r=p_obj + R_obj @ jnp.array([0.0, GRASP_OFF, 0.0]),
         tcp_h=mc.tcp_pos(d, h), tcp_r=mc.tcp_pos(d, r),
-        yaw_h=d.ctrl[h.act + 5], yaw_r=d.ctrl[r.act + 5],
+        ang_h=d.ctrl[h.act + 3:h.act + 6], ang_r=d.ctrl[r.act + 3:r.act + 6],
         h_grasp=mc.is_grasping(d, h, OBJ), r_grasp=mc.is_grasping(d, r, OBJ),
         h_open=mc.finger_gap(d, h) > 0.036,
         released=state.info["released"] > 0,
@@ -225,33 +261,35 @@ def _human(env, ts: TeamState, c: dict):
     """The human's phase machine: (target, yaw target, gripper, new phase, anchor, new wp_on, new decoy_n)."""
     d, h = c["d"], env.human
     ph, th = ts.phase[0], ts.timer[0]
-    tcp_h, yaw_h, obj_yaw = c["tcp_h"], c["yaw_h"], c["obj_yaw"]
+    tcp_h, ang_h, flat = c["tcp_h"], c["ang_h"], c["flat"]
     above_h = c["grasp_h"] + jnp.array([0.0, 0.0, 0.07])
-    carry_h = ts.spot + _rotz(ts.yaw) @ jnp.array([0.0, -GRASP_OFF, 0.0])
+    R_show = presented(ts)
+    show = mc.grip_angles(R_show, h)
+    carry_h = ts.spot + R_show @ jnp.array([0.0, -GRASP_OFF, 0.0])
     lift_h = ts.anchor[0] + jnp.array([0.0, 0.0, ts.lift])
     retreat_h = ts.anchor[0] + ts.retreat[0]
     hold_pos = ts.anchor[0]
     target_h = jnp.select(
         [ph == H_WAIT, ph == H_REACH, ph == H_DESCEND, ph == H_CLOSE, ph == H_LIFT, ph == H_CARRY, ph == H_HOLD],
         [world_ctrl(d, h), above_h, c["grasp_h"], hold_pos, lift_h, carry_h, carry_h], retreat_h)
-    yawt_h = jnp.select([ph <= H_CLOSE, ph <= H_HOLD], [obj_yaw, ts.yaw], yaw_h)
-    yawt_h = jnp.where(ph == H_WAIT, yaw_h, yawt_h)
+    yawt_h = jnp.select([ph <= H_CLOSE, ph <= H_HOLD], [flat, show], ang_h)
+    yawt_h = jnp.where(ph == H_WAIT, ang_h, yawt_h)
     own_release = (ph == H_HOLD) & c["r_grasp"] & (th >= ts.release)
     grip_h = jnp.where((ph >= H_CLOSE) & (ph <= H_HOLD) & ~c["released"] & ~own_release, -1.0, 1.0)
     adv_h = jnp.select(
         [ph == H_WAIT, ph == H_REACH, ph == H_DESCEND, ph == H_CLOSE, ph == H_LIFT, ph == H_CARRY,
          ph == H_HOLD],
         [th >= ts.delay[0],
-         _near(tcp_h, above_h, 0.012) & (jnp.abs(yaw_h - obj_yaw) < 0.05),
+         _near(tcp_h, above_h, 0.012) & mc.angles_close(d, h, flat),
          _near(tcp_h, c["grasp_h"], 0.006),
          c["h_grasp"] & (th >= 5),
          _near(tcp_h, lift_h, 0.012) & (th >= ts.pause),
-         _near(tcp_h, carry_h, 0.008) & (jnp.abs(yaw_h - ts.yaw) < 0.05),
+         _near(tcp_h, carry_h, 0.008) & mc.angles_close(d, h, show),
          (c["released"] | own_release) & c["h_open"]],
         False)
     # the human's variation of its path: a decoy spot first (change of mind), waypoints (detour)
     decoying = (ph == H_CARRY) & (ts.decoy_n > 0)
-    decoy_tcp = ts.decoy + _rotz(ts.yaw) @ jnp.array([0.0, -GRASP_OFF, 0.0])
+    decoy_tcp = ts.decoy + R_show @ jnp.array([0.0, -GRASP_OFF, 0.0])
     wps = jnp.stack([above_h + ts.wp_off[0], 0.5 * (ts.anchor[0] + carry_h) + ts.wp_off[1]])
     leg = jnp.stack([ph == H_REACH, ph == H_CARRY]) & ts.wp_on & ~decoying
     k = jnp.argmax(leg)
@@ -276,14 +314,14 @@ def _robot(env, ts: TeamState, c: dict, seen: tuple | None = None):
     d, r = c["d"], env.robot
     ph = ts.phase[0]
     pr, tr = ts.phase[1], ts.timer[1]
-    tcp_r, yaw_r, obj_yaw, grasp_r = c["tcp_r"], c["yaw_r"], c["obj_yaw"], c["grasp_r"]
-    above_r = grasp_r + jnp.array([0.0, 0.0, 0.07])
-    stage_r = grasp_r + c["R_obj"] @ jnp.array([0.0, 0.09, 0.0]) + jnp.array([0.0, 0.0, 0.08])
+    tcp_r, ang_r, grip, grasp_r, n = c["tcp_r"], c["ang_r"], c["grip_r"], c["grasp_r"], c["normal"]
+    above_r = grasp_r + 0.07 * n  # over the bar along its normal: the gripper comes square to a tilted bar
+    stage_r = reachable(grasp_r + c["R_obj"] @ jnp.array([0.0, 0.09, 0.0]) + 0.08 * n, r)
     retreat_r = ts.anchor[1] + ts.retreat[1]
     target_r = jnp.select(
         [pr == R_WAIT, pr == R_STAGE, pr == R_OVER, pr == R_DESCEND, pr == R_CLOSE],
         [world_ctrl(d, r), stage_r, above_r, grasp_r, ts.anchor[1]], retreat_r)
-    yawt_r = jnp.where((pr == R_WAIT) | (pr == R_RETREAT), yaw_r, obj_yaw)
+    yawt_r = jnp.where((pr == R_WAIT) | (pr == R_RETREAT), ang_r, grip)
     grip_r = jnp.where(pr >= R_CLOSE, -1.0, 1.0)
     if seen is None:  # the team's robot sees the human's phase
         lifted, holding = ph >= H_LIFT, ph >= H_HOLD
@@ -294,7 +332,7 @@ def _robot(env, ts: TeamState, c: dict, seen: tuple | None = None):
         [pr == R_WAIT, pr == R_STAGE, pr == R_OVER, pr == R_DESCEND, pr == R_CLOSE],
         [lifted & (tr >= ts.delay[1]),
          holding & _near(tcp_r, stage_r, 0.015),
-         _near(tcp_r, above_r, 0.01) & (jnp.abs(yaw_r - obj_yaw) < 0.05),
+         _near(tcp_r, above_r, 0.01) & mc.angles_close(d, r, grip),
          _near(tcp_r, grasp_r, 0.006),
          c["r_grasp"] & human_gone & (tr >= 4)],
         False)
@@ -324,7 +362,7 @@ def team_act(env, ts: TeamState, state, rng: jax.Array, seen: tuple | None = Non
     a_h = jnp.concatenate([jnp.asarray(h.base_mat.T) @ vel_h,
                            rot_action(d, h, yawt_h, 0.25 * ts.rot_gain, jnp.minimum(0.9 * ts.rot_gain, 1.0))]) + noise[0]
     a_r = jnp.concatenate([jnp.asarray(r.base_mat.T) @ vel_r,
-                           rot_action(d, r, mc.wrap_angle(yawt_r, np.pi))]) + noise[1]
+                           rot_action(d, r, yawt_r)]) + noise[1]
     # the human's variation: a dead stop (no motion, gripper as it was, its plan frozen)
     stopped = paused(ts.pause_t, ts.pause_n, state.info["t"])
     a_h = jnp.where(stopped, 0.0, a_h)
@@ -368,4 +406,4 @@ def robot_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax
 
 
 TEAM = Team(init=team_init, act=team_act, variations=True, partner_can_follow=False, human_act=human_act,
-            robot_act=robot_act, held_out=True, prompt_robot=True)
+            robot_act=robot_act, held_out=True, held_out_slices=SLICES, prompt_robot=True)

@@ -31,13 +31,14 @@ Action (14): ``concat(a_H, a_R)``, each ``(dx, dy, dz, drx, dry, drz, g)`` in [-
 per unit per step in the agent's base frame (the paper's HR-Handover scale, shared with
 :mod:`handover`) and the absolute gripper command (-1 closed, +1 open).
 
-Observation (65): human TCP pose in the human base frame (3 + 6D rotation), robot TCP pose in the robot
+Observation (77): human TCP pose in the human base frame (3 + 6D rotation), robot TCP pose in the robot
 base frame (3 + 6), object position relative to each TCP (each in that agent's base frame, 3 + 3),
 object orientation (6D, world), finger gaps / 8 cm (2), handle position relative to each TCP (each in
 that agent's base frame, 3 + 3), drawer opening / 16 cm (1), flags: human grasps the object, robot
 grasps the object, human grasps the handle, robot grasps the handle (4); then the object-centric features of
-the human and of the robot (11 each, :func:`mjx_common.object_frame_features`: the bar's ends in the agent's
-base frame relative to its TCP, the TCP's yaw relative to the bar, the TCP in the bar's frame), the observation
+the human and of the robot (17 each, :func:`mjx_common.object_frame_features`: the bar's ends in the agent's
+base frame relative to its TCP, the TCP's yaw relative to the bar, the TCP in the bar's frame, the bar's
+orientation in the TCP's frame), the observation
 indices :attr:`SeqManip.object_frame_dims` (a config's ``obs_frame`` chooses whether
 they or the absolute orientations are read).
 
@@ -222,13 +223,13 @@ class SeqManip(CollabEnv):
         self._renderer = None
 
     # the observation layout and the team's pose ranges (part of the version fingerprint of generated data)
-    spec_tag = "obs65-object-frame-poses3-prompt-start10-drop-fits-04-early-0.04"
-    object_frame_dims = tuple(range(43, 65))
+    spec_tag = "obs77-object-frame-rot-poses6dof-prompt-start10-drop-fits-04-early-0.04"
+    object_frame_dims = tuple(range(43, 77))
     orientation_dims = (*range(3, 9), *range(12, 18), *range(24, 30))  # the TCPs' and the bar's 6D rotations
 
     @property
     def observation_size(self) -> int:
-        return 65
+        return 77
 
     @property
     def dt(self) -> float:

@@ -30,23 +30,40 @@ bar once the human offers it, closes once the human has let go, drops once the d
 and closes the drawer once the bar lies in it and the human has retreated. A human who is late, pauses or
 first heads elsewhere is waited for.
 
-Poses and places (the ranges a person plausibly uses; the robot grasps the bar wherever it is):
+Poses and places (the ranges a person plausibly uses and both grippers reach and grasp; the robot grasps the bar
+however it is offered, aligning its gripper with the bar about all three axes, and either dropper levels the bar
+before the drop, as a person putting it away would). The bar's orientation while the human carries, offers or holds
+it is ``Rz(yaw) Rx(pitch) Ry(roll)`` (:func:`mjx_common.pose_mat`: yaw about the vertical, pitch tilting its long axis,
+roll twisting it about its long axis); the places are the handover spot (bar centre, strategy 1), the human's waiting
+point with the bar (its TCP, strategy 2) and the drop (the bar's centre over the open drawer, either strategy); m,
+world:
 
-* the bar's yaw while the human carries, offers or holds it (rad, about the vertical): training range
-  ``|yaw| <= 0.7`` (+-40 degrees), held-out slice ``0.7 < |yaw| <= 1.05`` (the outer third of +-60 degrees);
-* the handover spot (bar centre, strategy 1): x in [-0.20, 0.02], y in [-0.08, 0.01], z in [0.12, 0.26];
-  held-out slice: z in (0.26, 0.31];
-* the human's waiting point with the bar (its TCP, strategy 2): x in [-0.09, 0.04], y in [-0.23, -0.14], z in
-  [0.18, 0.25]; held-out slice: z in (0.25, 0.30].
+==========  ===================================================  ===============================================
+axis        training range                                       held-out slice (``pose_heldout_<axis>``)
+==========  ===================================================  ===============================================
+roll        ``|roll| <= 0.3`` (17 degrees)                        ``0.3 < |roll| <= 0.45`` (26 degrees)
+pitch       ``|pitch| <= 0.3``                                    ``0.3 < |pitch| <= 0.45``
+yaw         ``|yaw| <= 0.7`` (40 degrees)                         ``0.7 < |yaw| <= 1.05`` (the outer third of +-60)
+x           spot [-0.20, 0.02]; waiting point [-0.09, 0.04]       spot [-0.25, -0.20) or (0.02, 0.05]; waiting
+                                                                 point [-0.13, -0.09) or (0.04, 0.07]
+y           spot [-0.08, 0.01]; waiting point [-0.23, -0.14]      spot (0.01, 0.04]; waiting point [-0.27, -0.23)
+z           spot [0.12, 0.26]; waiting point [0.18, 0.25]         spot (0.26, 0.31]; waiting point (0.25, 0.30]
+place       the drop: 4.7-5.5 cm past the drawer's front inner    5.5-6.5 cm past it, or 3-4.5 cm to the side
+            wall, within 3 cm of its middle sideways             (either side), at even odds
+==========  ===================================================  ===============================================
 
-The drop (either agent): the bar's centre 4.7-5.5 cm past the drawer's front inner wall, 1-3 cm above the walls. A
+The slices end where the task does: the spot's y band lies towards the robot only and the waiting point's towards
+the human only (the robot starts on a human past the middle of the table, ``CUE_Y``, for a handover and short of it
+for the drawer), the spot's x stays short of the drawer, and the drop's bands end where the bar still clears the
+drawer's walls and the cabinet's front. Every default, training, validation and test episode lies in the training
+ranges; an episode drawn with ``variation | pose_slice(axis)`` has that axis in its slice and every other in range,
+one drawn with ``variation | POSE_HELDOUT`` alone one of the seven axes (drawn) in its slice.
+
+The drop (either agent): the bar's centre 4.7-5.5 cm past the drawer's front inner wall (in the place slice 5.5-6.5),
+within 3 cm of the drawer's middle sideways (in the place slice 3-4.5 cm to one side), 1-3 cm above the walls. A
 bar turned by at most 0.35-0.45 rad (the episode's bound) fits the drawer there, so the dropper turns the bar only as
 far as it must: a bar held within the bound is dropped as it is held, one turned further is turned back to the bound
-first, as a person putting it away would.
-
-Every default, training, validation and test episode lies in the training ranges; an episode drawn with
-``variation | POSE_HELDOUT`` (the ``pose_heldout`` evaluation set) has either its yaw or its height (one of
-the two, at even odds) in the held-out slice and the other in range.
+first, and a tilted or twisted bar is levelled, as a person putting it away would.
 
 Variations of the human (:mod:`cogail_envs.variations`; the robot is unchanged):
 
@@ -78,8 +95,8 @@ import numpy as np
 from .. import mjx_common as mc
 from .env import CUE_Y, DR_DX, DRAWER_OPEN_MIN, GRASP_OFF, OBJ, OBJ_HALF, WALL_TOP
 from ..registry import Team
-from ..variations import (CHANGE_OF_MIND, DETOUR, NOISE, VARIATION_SALT, following, held_out, human_variation,
-                          pace_factor, pause_schedule, paused, prompt, slice_draw)
+from ..variations import (CHANGE_OF_MIND, DETOUR, NOISE, VARIATION_SALT, band_draw, following, held_axes,
+                          human_variation, pace_factor, pause_schedule, paused, prompt, slice_draw)
 
 (H_WAIT, H_REACH, H_DESCEND, H_CLOSE, H_LIFT,
  H_CARRY, H_OFFER, H_BACKOFF, H_TO_HANDLE, H_DESC_HANDLE, H_GRIP_HANDLE, H_PULL, H_HOLD_OPEN, H_PUSH,
@@ -108,8 +125,14 @@ NUM_PAUSES, PAUSE_START, PAUSE_LEN = 2, (15, 380), (20, 41)
 NOISE_FACTOR = 3.0
 DECOY_STEPS = (35, 61)
 YAW_RANGE, YAW_HELD = (0.0, 0.7), (0.7, 1.05)   # |yaw| of the held bar: training range, held-out slice
+TILT_RANGE, TILT_HELD = (0.0, 0.3), (0.3, 0.45)  # |pitch| and |roll| of the held bar (rad)
 SPOT_LO, SPOT_HI, SPOT_Z_HELD = (-0.20, -0.08, 0.12), (0.02, 0.01, 0.26), (0.26, 0.31)
+SPOT_X_HELD, SPOT_Y_HELD = ((-0.25, -0.20), (0.02, 0.05)), (None, (0.01, 0.04))  # (below, above) bands
 WAIT_LO, WAIT_HI, WAIT_Z_HELD = (-0.09, -0.23, 0.18), (0.04, -0.14, 0.25), (0.25, 0.30)
+WAIT_X_HELD, WAIT_Y_HELD = ((-0.13, -0.09), (0.04, 0.07)), ((-0.27, -0.23), None)
+DROP_LO, DROP_HI = (0.047, -0.03, 0.01, -0.1), (0.055, 0.03, 0.03, 0.1)  # drop x past the wall, y, height; yaw bound
+DROP_X_HELD, DROP_Y_HELD = (0.055, 0.065), (0.03, 0.045)  # the place slice: further in, or (|y|) to the side
+SLICES = ("roll", "pitch", "yaw", "x", "y", "z", "place")  # the team's held-out slices (variations.POSE_AXES)
 POSE_SALT = 4_242
 # what the co-play agents see of each other (``human_act`` / ``robot_act``): the bar lifted (its centre this
 # high, the human grasping it), held still (moving less than STILL_SPEED per step for STILL_STEPS steps), the
@@ -141,10 +164,19 @@ def move(p_cmd, target, vel, vmax, amax, gain):
     return vel + dv * jnp.minimum(1.0, amax / (dn + 1e-9))
 
 
-def rot_action(d, g: mc.Gripper, yaw_target, gain=0.25, vmax=0.9):
-    cur = d.ctrl[g.act + 3:g.act + 6]
-    tgt = jnp.stack([0.0, 0.0, yaw_target])
-    return jnp.clip(gain * (tgt - cur) / mc.ROT_SCALE, -vmax, vmax)
+def rot_action(d, g: mc.Gripper, target, gain=0.25, vmax=0.9):
+    """Rotation actions towards the hinge targets ``target`` (rx, ry, rz)."""
+    return mc.rot_toward(d, g, target, gain, vmax)
+
+
+def presented(ts: TeamState) -> jax.Array:
+    """The orientation (world) the human carries, offers and holds the bar at."""
+    return mc.pose_mat(ts.tilt[1], ts.tilt[0], ts.yaw)
+
+
+def _flat(yaw) -> jax.Array:
+    """Hinge targets of a level gripper turned by ``yaw`` about the vertical."""
+    return jnp.stack([jnp.zeros_like(yaw), jnp.zeros_like(yaw), yaw])
 
 
 def world_ctrl(d, g: mc.Gripper) -> jax.Array:
@@ -194,6 +226,7 @@ class TeamState(NamedTuple):
     still: jax.Array = np.zeros((), np.int32)
     guess: jax.Array = np.zeros((), np.int32)
     early: jax.Array = np.zeros((), bool)  # the robot starts towards the drop as the drawer is being opened
+    tilt: jax.Array = np.zeros((2,), np.float32)  # (pitch, roll) of the bar as the human carries and holds it (rad)
 
 
 def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamState, jax.Array]:
@@ -202,14 +235,21 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
                                                        maxval=jnp.asarray(hi, jnp.float32))
     strategy = (jax.random.categorical(ks[0], jnp.log(jnp.asarray(mix, jnp.float32) + 1e-12)) + 1).astype(jnp.int32)
     v = human_variation(variation)
-    kp = jax.random.split(jax.random.fold_in(rng, POSE_SALT), 4)
-    held = held_out(variation)
-    held_yaw = jax.random.bernoulli(kp[0], 0.5)  # which of the two the held-out slice moves
-    high = held & ~held_yaw
+    kp = jax.random.split(jax.random.fold_in(rng, POSE_SALT), 12)
+    held = held_axes(kp[0], variation, SLICES)
     spot = u(ks[1], SPOT_LO, SPOT_HI, (3,))
-    spot = spot.at[2].set(slice_draw(kp[1], high, (SPOT_LO[2], SPOT_HI[2]), SPOT_Z_HELD))
+    spot = spot.at[0].set(band_draw(kp[3], held["x"], (SPOT_LO[0], SPOT_HI[0]), *SPOT_X_HELD))
+    spot = spot.at[1].set(band_draw(kp[4], held["y"], (SPOT_LO[1], SPOT_HI[1]), *SPOT_Y_HELD))
+    spot = spot.at[2].set(slice_draw(kp[1], held["z"], (SPOT_LO[2], SPOT_HI[2]), SPOT_Z_HELD))
     wait_h = u(ks[2], WAIT_LO, WAIT_HI, (3,))
-    wait_h = wait_h.at[2].set(slice_draw(kp[2], high, (WAIT_LO[2], WAIT_HI[2]), WAIT_Z_HELD))
+    wait_h = wait_h.at[0].set(band_draw(kp[5], held["x"], (WAIT_LO[0], WAIT_HI[0]), *WAIT_X_HELD))
+    wait_h = wait_h.at[1].set(band_draw(kp[6], held["y"], (WAIT_LO[1], WAIT_HI[1]), *WAIT_Y_HELD))
+    wait_h = wait_h.at[2].set(slice_draw(kp[2], held["z"], (WAIT_LO[2], WAIT_HI[2]), WAIT_Z_HELD))
+    drop = u(ks[5], DROP_LO, DROP_HI, (4,))
+    side = jax.random.bernoulli(kp[7], 0.5)  # the place slice: further in, or to the side
+    drop = drop.at[0].set(jnp.where(held["place"] & side, u(kp[8], *DROP_X_HELD), drop[0]))
+    drop = drop.at[1].set(jnp.where(held["place"] & ~side, slice_draw(kp[9], True, (0.0, 0.0), DROP_Y_HELD,
+                                                                         symmetric=True), drop[1]))
     kv = jax.random.split(jax.random.fold_in(rng, VARIATION_SALT), 8)
     pace = pace_factor(v, *PACE)
     pause_t, pause_n = pause_schedule(kv[0], v, NUM_PAUSES, PAUSE_START, PAUSE_LEN)
@@ -232,8 +272,10 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
         spot=spot,
         wait_pt=jnp.stack([wait_h,
                            u(ks[3], [0.04, 0.13, 0.24], [0.10, 0.17, 0.29], (3,))]),
-        yaw=slice_draw(ks[4], held & held_yaw, (-YAW_RANGE[1], YAW_RANGE[1]), YAW_HELD, symmetric=True),
-        drop=u(ks[5], [0.047, -0.03, 0.01, -0.1], [0.055, 0.03, 0.03, 0.1], (4,)),
+        yaw=slice_draw(ks[4], held["yaw"], (-YAW_RANGE[1], YAW_RANGE[1]), YAW_HELD, symmetric=True),
+        tilt=jnp.stack([slice_draw(k, held[a], (-TILT_RANGE[1], TILT_RANGE[1]), TILT_HELD, symmetric=True)
+                        for k, a in ((kp[10], "pitch"), (kp[11], "roll"))]),
+        drop=drop,
         open_amt=u(ks[6], 0.125, 0.155),
         handle_y=jnp.stack([u(ks[7], -0.04, -0.005), u(ks[8], 0.005, 0.04)]),
         vmax=vmax.at[0].set(jnp.minimum(vmax[0] * pace, 1.0)),
@@ -278,10 +320,11 @@ def _context(env, ts: TeamState, state) -> dict:
     drop_c = jnp.stack([front_inner + ts.drop[0], ts.drop[1], WALL_TOP + OBJ_HALF[2] + ts.drop[2]])
     closed_x = handle[0] + opening + 0.008  # handle x of the closed drawer (+ a little push)
     return dict(
-        d=d, p_obj=p_obj, R_obj=R_obj,
+        d=d, p_obj=p_obj, R_obj=R_obj, normal=mc.bar_normal(R_obj), grip_r=mc.grip_angles(R_obj, r),
         obj_yaw=mc.wrap_angle(mc.yaw_of(R_obj), np.pi),  # the bar is symmetric under 180 deg
         handle=handle, opening=opening, tcp=tcp,
         yaw=jnp.stack([d.ctrl[h.act + 5], d.ctrl[r.act + 5]]),  # (robot: its own base frame)
+        ang=jnp.stack([d.ctrl[h.act + 3:h.act + 6], d.ctrl[r.act + 3:r.act + 6]]),  # every hinge target
         h_grasp=mc.is_grasping(d, h, OBJ), r_grasp=mc.is_grasping(d, r, OBJ),
         h_handle=mc.is_grasping(d, h, "handle"), r_handle=mc.is_grasping(d, r, "handle"),
         h_touch=h_touch, r_touch=r_touch,
@@ -303,13 +346,15 @@ def _near(c, i, tgt, tol):
 
 
 def _drop_yaw(c, ts: TeamState, i):
-    """The yaw agent ``i`` drops the bar at: its own, turned back within the bound the drawer takes."""
+    """The hinge targets agent ``i`` drops the bar at: level, its own yaw turned back within the bound the drawer
+    takes."""
     bound = DROP_FITS + 0.5 * ts.drop[3]
-    return jnp.clip(mc.wrap_angle(c["yaw"][i], np.pi), -bound, bound)
+    return _flat(jnp.clip(mc.wrap_angle(c["yaw"][i], np.pi), -bound, bound))
 
 
 def _yaw_ok(c, i, tgt):
-    return jnp.abs(mc.wrap_angle(c["yaw"][i] - tgt, np.pi)) < 0.05
+    """Every hinge target of agent ``i`` within 0.05 rad of ``tgt`` (rx, ry, rz)."""
+    return jnp.all(jnp.abs(c["ang"][i] - tgt) < 0.05)
 
 
 def _human(env, ts: TeamState, c: dict, coplay: bool = False):
@@ -321,7 +366,10 @@ def _human(env, ts: TeamState, c: dict, coplay: bool = False):
     obj_yaw, drop_tcp, handle_pt = c["obj_yaw"], c["drop_tcp"], c["handle_pt"]
     g_h = c["p_obj"] + c["R_obj"] @ jnp.array([0.0, -GRASP_OFF, 0.0])
     g_h = g_h.at[2].set(jnp.maximum(g_h[2], 0.018))
-    spot_h = ts.spot + _rotz(ts.yaw) @ jnp.array([0.0, -GRASP_OFF, 0.0])
+    R_show = presented(ts)
+    show = mc.grip_angles(R_show, h)
+    flat, level = _flat(obj_yaw), _flat(jnp.zeros(()))
+    spot_h = ts.spot + R_show @ jnp.array([0.0, -GRASP_OFF, 0.0])
     hold_h = ts.anchor[0]
     retreat_h = ts.anchor[0] + ts.retreat[0]
     target = _select(ph, {
@@ -332,10 +380,10 @@ def _human(env, ts: TeamState, c: dict, coplay: bool = False):
         H_PUSH: c["push"][0], H_LET_GO: hold_h, H_CARRY_WAIT: ts.wait_pt[0], H_WAIT_OPEN: ts.wait_pt[0],
         H_ABOVE_DROP: drop_tcp[0] + _up(0.06), H_LOWER: drop_tcp[0], H_RELEASE: hold_h}, retreat_h)
     yawt = _select(ph, {
-        H_REACH: obj_yaw, H_DESCEND: obj_yaw, H_CLOSE: obj_yaw, H_LIFT: ts.yaw, H_CARRY: ts.yaw,
-        H_OFFER: ts.yaw, H_TO_HANDLE: 0.0, H_DESC_HANDLE: 0.0, H_GRIP_HANDLE: 0.0, H_PULL: 0.0,
-        H_HOLD_OPEN: 0.0, H_PUSH: 0.0, H_CARRY_WAIT: ts.yaw, H_WAIT_OPEN: ts.yaw,
-        H_ABOVE_DROP: _drop_yaw(c, ts, 0), H_LOWER: _drop_yaw(c, ts, 0)}, c["yaw"][0])
+        H_REACH: flat, H_DESCEND: flat, H_CLOSE: flat, H_LIFT: show, H_CARRY: show,
+        H_OFFER: show, H_TO_HANDLE: level, H_DESC_HANDLE: level, H_GRIP_HANDLE: level, H_PULL: level,
+        H_HOLD_OPEN: level, H_PUSH: level, H_CARRY_WAIT: show, H_WAIT_OPEN: show,
+        H_ABOVE_DROP: _drop_yaw(c, ts, 0), H_LOWER: _drop_yaw(c, ts, 0)}, c["ang"][0])
     offer_release = (ph == H_OFFER) & (th >= ts.react[0])
     grip = jnp.where(((ph >= H_CLOSE) & (ph <= H_OFFER) & ~offer_release)
                      | ((ph >= H_GRIP_HANDLE) & (ph <= H_PUSH))
@@ -352,21 +400,21 @@ def _human(env, ts: TeamState, c: dict, coplay: bool = False):
     near = lambda tgt, tol: _near(c, 0, tgt, tol)  # noqa: E731
     adv = _select(ph, {
         H_WAIT: th >= ts.delay[0],
-        H_REACH: near(g_h + _up(0.07), 0.012) & _yaw_ok(c, 0, obj_yaw),
+        H_REACH: near(g_h + _up(0.07), 0.012) & _yaw_ok(c, 0, flat),
         H_DESCEND: near(g_h, 0.006),
         H_CLOSE: c["h_grasp"] & (th >= 5),
         H_LIFT: near(ts.anchor[0] + _up(ts.lift), 0.012) & (th >= ts.pause),
-        H_CARRY: near(spot_h, 0.008) & _yaw_ok(c, 0, ts.yaw),
+        H_CARRY: near(spot_h, 0.008) & _yaw_ok(c, 0, show),
         H_OFFER: offer_release & c["gap_open"][0],
         H_BACKOFF: near(ts.anchor[0] + jnp.array([0.0, -0.06, 0.03]), 0.02),
-        H_TO_HANDLE: near(handle_pt[0] + _up(0.07), 0.012) & _yaw_ok(c, 0, 0.0),
+        H_TO_HANDLE: near(handle_pt[0] + _up(0.07), 0.012) & _yaw_ok(c, 0, level),
         H_DESC_HANDLE: near(handle_pt[0], 0.006),
         H_GRIP_HANDLE: c["h_handle"] & (th >= 4),
         H_PULL: near(c["pull"][0], 0.01) | (c["opening"] >= ts.open_amt),
         H_HOLD_OPEN: th >= ts.react[0],
         H_PUSH: (c["opening"] < 0.004) & (th >= 5),
         H_LET_GO: c["gap_open"][0] & (th >= 3),
-        H_CARRY_WAIT: near(ts.wait_pt[0], 0.012) & _yaw_ok(c, 0, ts.yaw),
+        H_CARRY_WAIT: near(ts.wait_pt[0], 0.012) & _yaw_ok(c, 0, show),
         H_WAIT_OPEN: th >= ts.react[0],
         H_ABOVE_DROP: near(drop_tcp[0] + _up(0.06), 0.012) & _yaw_ok(c, 0, _drop_yaw(c, ts, 0)),
         H_LOWER: near(drop_tcp[0], 0.008),
@@ -404,21 +452,24 @@ def _robot(env, ts: TeamState, c: dict, seen: dict | None = None):
     d, r = c["d"], env.robot
     ph, pr, tr = ts.phase[0], ts.phase[1], ts.timer[1]
     s_r = ts.strategy[1] - 1
-    obj_yaw, drop_tcp, handle_pt, tcp = c["obj_yaw"], c["drop_tcp"], c["handle_pt"], c["tcp"]
+    grip_a, drop_tcp, handle_pt, tcp = c["grip_r"], c["drop_tcp"], c["handle_pt"], c["tcp"]
+    level = _flat(jnp.zeros(()))
     g_r = c["p_obj"] + c["R_obj"] @ jnp.array([0.0, GRASP_OFF, 0.0])
+    over_r = g_r + 0.07 * c["normal"]  # over the bar along its normal: the gripper comes square to a tilted bar
     hold_r = ts.anchor[1]
     retreat_r = ts.anchor[1] + ts.retreat[1]
     lift_r = ts.anchor[1] + jnp.array([0.0, 0.06, 0.06])
     target = _select(pr, {
-        R_WAIT: world_ctrl(d, r), R_APPROACH: g_r + _up(0.07), R_DESCEND: g_r, R_CLOSE: hold_r,
+        R_WAIT: world_ctrl(d, r), R_APPROACH: over_r, R_DESCEND: g_r, R_CLOSE: hold_r,
         R_LIFT: lift_r, R_HOVER: ts.wait_pt[1], R_WAIT_OPEN: ts.wait_pt[1],
         R_ABOVE_DROP: drop_tcp[1] + _up(0.06), R_LOWER: drop_tcp[1], R_RELEASE: hold_r,
         R_TO_HANDLE: handle_pt[1] + _up(0.07), R_DESC_HANDLE: handle_pt[1], R_GRIP_HANDLE: hold_r,
         R_PULL: c["pull"][1], R_HOLD_OPEN: hold_r, R_PUSH: c["push"][1], R_LET_GO: hold_r}, retreat_r)
+    keep = jnp.full((3,), jnp.nan)
     yawt = _select(pr, {
-        R_APPROACH: obj_yaw, R_DESCEND: obj_yaw, R_CLOSE: obj_yaw, R_ABOVE_DROP: _drop_yaw(c, ts, 1),
-        R_LOWER: _drop_yaw(c, ts, 1), R_TO_HANDLE: 0.0, R_DESC_HANDLE: 0.0, R_GRIP_HANDLE: 0.0, R_PULL: 0.0,
-        R_HOLD_OPEN: 0.0, R_PUSH: 0.0}, jnp.nan)
+        R_APPROACH: grip_a, R_DESCEND: grip_a, R_CLOSE: grip_a, R_ABOVE_DROP: _drop_yaw(c, ts, 1),
+        R_LOWER: _drop_yaw(c, ts, 1), R_TO_HANDLE: level, R_DESC_HANDLE: level, R_GRIP_HANDLE: level, R_PULL: level,
+        R_HOLD_OPEN: level, R_PUSH: level}, keep)
     grip = jnp.where(((pr >= R_CLOSE) & (pr <= R_LOWER)) | ((pr >= R_GRIP_HANDLE) & (pr <= R_PUSH)), -1.0, 1.0)
     near = lambda tgt, tol: _near(c, 1, tgt, tol)  # noqa: E731
     near_h = lambda tgt, tol: _near(c, 0, tgt, tol)  # noqa: E731
@@ -443,7 +494,7 @@ def _robot(env, ts: TeamState, c: dict, seen: dict | None = None):
         R_HOLD_OPEN: c["placed"] & gone}, True)
     adv = _select(pr, {
         R_WAIT: tr >= ts.delay[1],
-        R_APPROACH: offers & near(g_r + _up(0.07), 0.012) & _yaw_ok(c, 1, obj_yaw),
+        R_APPROACH: offers & near(over_r, 0.012) & _yaw_ok(c, 1, grip_a),
         R_DESCEND: near(g_r, 0.006),
         R_CLOSE: c["r_grasp"] & let_go & ~c["h_touch"] & (tr >= 4),
         R_LIFT: near(lift_r, 0.015),
@@ -453,7 +504,7 @@ def _robot(env, ts: TeamState, c: dict, seen: dict | None = None):
         & (open_held | ~early),
         R_LOWER: near(drop_tcp[1], 0.008),
         R_RELEASE: c["gap_open"][1] & (tr >= 3),
-        R_TO_HANDLE: near(handle_pt[1] + _up(0.07), 0.012) & _yaw_ok(c, 1, 0.0),
+        R_TO_HANDLE: near(handle_pt[1] + _up(0.07), 0.012) & _yaw_ok(c, 1, level),
         R_DESC_HANDLE: near(handle_pt[1], 0.006),
         R_GRIP_HANDLE: c["r_handle"] & (tr >= 4),
         R_PULL: near(c["pull"][1], 0.01) | (c["opening"] >= ts.open_amt),
@@ -485,7 +536,7 @@ def team_act(env, ts: TeamState, state, rng: jax.Array, coplay: bool = False,
     vel_h = jnp.where(ph == H_WAIT, 0.0, vel_h)
     vel_r = jnp.where(pr == R_WAIT, 0.0, vel_r)
     noise = jax.random.normal(k1, (2, 6)) * ts.noise[:, None] * jnp.array([1.0, 1, 1, 0.3, 0.3, 0.3])
-    yawt_r = jnp.where(jnp.isnan(yawt_r), c["yaw"][1], mc.wrap_angle(yawt_r, np.pi))
+    yawt_r = jnp.where(jnp.isnan(yawt_r), c["ang"][1], yawt_r)
     a_h = jnp.concatenate([jnp.asarray(h.base_mat.T) @ vel_h,
                            rot_action(d, h, yawt_h, 0.25 * ts.rot_gain, jnp.minimum(0.9 * ts.rot_gain, 1.0))]) + noise[0]
     a_r = jnp.concatenate([jnp.asarray(r.base_mat.T) @ vel_r, rot_action(d, r, yawt_r)]) + noise[1]
@@ -565,4 +616,4 @@ def robot_act(env, ts: TeamState, state, rng: jax.Array) -> tuple[TeamState, jax
 
 
 TEAM = Team(init=team_init, act=team_act, variations=True, partner_can_follow=True, human_act=human_act,
-            robot_act=robot_act, held_out=True, prompt_robot=True)
+            robot_act=robot_act, held_out=True, held_out_slices=SLICES, prompt_robot=True)

@@ -97,6 +97,21 @@ def slice_names(axes) -> tuple[str, ...]:
     return tuple(slice_name(a) for a in axes)
 
 
+def held_out_sets(team) -> tuple[str, ...]:
+    """The held-out evaluation sets of a team (:class:`cogail_envs.Team`): ``pose_heldout_<axis>`` for each axis of
+    its ``held_out_slices``, ``pose_heldout`` for a team that draws a held-out slice without naming its axes, none
+    for one without ``held_out``."""
+    if team is None or not getattr(team, "held_out", False):
+        return ()
+    axes = tuple(getattr(team, "held_out_slices", ()) or ())
+    return slice_names(axes) if axes else (HELD_OUT,)
+
+
+def is_held_out_set(name: str) -> bool:
+    """Whether ``name`` is a held-out pose slice's set (``pose_heldout`` or ``pose_heldout_<axis>``)."""
+    return name == HELD_OUT or (name.startswith(HELD_OUT + "_") and name[len(HELD_OUT) + 1:] in POSE_AXES)
+
+
 def held_axes(key: jax.Array, variation, axes: tuple[str, ...]) -> dict[str, jax.Array]:
     """Per axis of a team's ``axes`` (its ``held_out_slices``), whether this episode draws it from its held-out slice:
     none without :data:`POSE_HELDOUT`; the one the variation names (:func:`pose_slice`); with the flag alone, one of
@@ -174,7 +189,8 @@ def paused(starts: jax.Array, lens: jax.Array, t: jax.Array) -> jax.Array:
 
 
 __all__ = ["VARIATIONS", "FOLLOWING_PARTNER", "POSE_HELDOUT", "PROMPT_ROBOT", "HELD_OUT", "human_variation", "held_out",
-           "POSE_AXES", "pose_slice", "slice_name", "slice_names", "held_axes", "band_draw",
+           "POSE_AXES", "pose_slice", "slice_name", "slice_names", "held_axes", "band_draw", "held_out_sets",
+           "is_held_out_set",
            "following", "prompt",
            "slice_draw", "NONE", "SLOW", "FAST", "PAUSES", "DETOUR", "NOISE", "CHANGE_OF_MIND",
            "variation_id", "pace_factor", "pause_schedule", "paused"]

@@ -564,14 +564,21 @@ def robustness_rows(results: dict, tasks, methods, prefix: str = "robust-", base
     """Replay success against varied humans at the selected checkpoint, next to in-distribution replay there.
     ``prefix``: the varied-human sets (``patient-robust-``: replayed with a patient human; ``val-robust-``: drawn
     from the validation split); ``base``: the in-distribution figure (``_in_distribution``). ``keys``: the results
-    to tabulate, one row each named by its key (default: every method of ``tasks`` and the shipped settings)."""
+    to tabulate, one row each named by its key (default: every method of ``tasks`` and the shipped settings). The
+    held-out pose slices (``pose_heldout_<axis>``, one column each, after the varied humans) get a column of their own
+    beside the worst set's: the worst slice's success over in-distribution replay, which the slices are judged by."""
+    from cogail_envs.variations import is_held_out_set
+
     var = []
     for r in results.values():
         var += [k for k in (r.get("extra_sets") or {}) if k.startswith(prefix) and k not in var]
     if not var:
         return []
-    lines = ["| task | method | in-distribution | " + " | ".join(v[len(prefix):] for v in var)
-             + " | worst / in-distribution |", "| --- | --- | --- |" + " --- |" * (len(var) + 1)]
+    var = [v for v in var if not is_held_out_set(v[len(prefix):])] + [v for v in var if is_held_out_set(v[len(prefix):])]
+    held = [i for i, v in enumerate(var) if is_held_out_set(v[len(prefix):])]
+    tail = " | worst / in-distribution |" + (" worst slice / in-distribution |" if held else "")
+    lines = ["| task | method | in-distribution | " + " | ".join(v[len(prefix):] for v in var) + tail,
+             "| --- | --- | --- |" + " --- |" * (len(var) + 1 + bool(held))]
     if keys is None:
         rows = [(t, m, f"{t}/{m}/uniform") for t in tasks for m in methods]
         rows += [(t, f"cogail ({label})", f"{t}/cogail/uniform/{label}") for t, _, label in shipped_runs() if t in tasks]
@@ -586,21 +593,32 @@ def robustness_rows(results: dict, tasks, methods, prefix: str = "robust-", base
         if not ind:
             continue
         vs = [((r.get("extra_sets") or {}).get(v) or {}).get("selected") for v in var]
-        worst = min((x["mean"] for x in vs if x), default=None)
-        ratio = f"{worst / ind['mean']:.2f}" if worst is not None and ind["mean"] > 0 else "-"
-        lines.append(f"| {t} | {m} | {_pct(ind)} | " + " | ".join(_pct(x) for x in vs) + f" | {ratio} |")
+        ratio = lambda xs: (f"{min(xs) / ind['mean']:.2f}" if xs and ind["mean"] > 0 else "-")  # noqa: E731
+        cells = [ratio([x["mean"] for x in vs if x])]
+        if held:
+            cells.append(ratio([vs[i]["mean"] for i in held if vs[i]]))
+        lines.append(f"| {t} | {m} | {_pct(ind)} | " + " | ".join(_pct(x) for x in vs) + " | " + " | ".join(cells)
+                     + " |")
     return lines
 
 
 def coplay_rows(results: dict, tasks, methods) -> list[str]:
     """Closed-loop co-play success (%, selected checkpoint, test episodes) of every method's robot with a reacting
     human: the task's scripted human, the worst of its variations of timing and path, the scripted human presenting
-    the object in the held-out pose slice (``pose_heldout``, a column where some row has it; -: that row's task has
-    none, or the row predates it) and the BC proxy of the test humans; the scripted robot with the same partners as
-    the reference, and each robot's proxy success over the scripted robot's."""
-    from cogail_envs.variations import HELD_OUT
+    the object in the held-out pose slices (``pose_heldout_<axis>``, or the older single ``pose_heldout``: the worst
+    slice and its axis, a column where some row has one; -: that row's task has none, or the row predates them) and
+    the BC proxy of the test humans; the scripted robot with the same partners as the reference, and each robot's
+    proxy success over the scripted robot's."""
+    from cogail_envs.variations import HELD_OUT, is_held_out_set
 
-    timing = lambda p: p not in ("scripted", "proxy", HELD_OUT)  # noqa: E731  (the variations of timing and path)
+    timing = lambda p: p not in ("scripted", "proxy") and not is_held_out_set(p)  # noqa: E731  (timing and path)
+
+    def worst_slice(got: dict, mean=lambda v: v["mean"]) -> str:
+        held = [(mean(v), p) for p, v in got.items() if is_held_out_set(p)]
+        if not held:
+            return "-"
+        x, p = min(held)
+        return f"{100 * x:.1f}" + ("" if p == HELD_OUT else f" ({p[len(HELD_OUT) + 1:]})")
     rows = []  # (task, robot, scripted, worst, held-out, proxy, ratio)
     for t in tasks:
         ref = None
@@ -614,18 +632,19 @@ def coplay_rows(results: dict, tasks, methods) -> list[str]:
             sr = (cp.get("scripted_robot") or {}).get("proxy")
             ratio = f"{got['proxy']['mean'] / sr:.2f}" if "proxy" in got and sr else "-"
             worst = f"{100 * min(var):.1f}" if var else "-"
-            rows.append((t, m, _pct(got.get("scripted")), worst, _pct(got.get(HELD_OUT)), _pct(got.get("proxy")),
-                         ratio))
+            held = (_pct(got.get(HELD_OUT)) if HELD_OUT in got
+                    else worst_slice({p: v for p, v in got.items() if p in cp.get("partners", [])}))
+            rows.append((t, m, _pct(got.get("scripted")), worst, held, _pct(got.get("proxy")), ratio))
         if ref:
             var = [v for p, v in ref.items() if timing(p)]
             worst = f"{100 * min(var):.1f}" if var else "-"
-            held = f"{100 * ref[HELD_OUT]:.1f}" if HELD_OUT in ref else "-"
+            held = worst_slice(ref, mean=lambda v: v)
             proxy = f"{100 * ref['proxy']:.1f}" if "proxy" in ref else "-"
             rows.append((t, "scripted robot (reference)", f"{100 * ref.get('scripted', 0):.1f}", worst, held, proxy,
                          "1.00"))
     if not rows:
         return []
-    cols = ["task", "robot", "scripted human", "its variations, worst", "held-out poses", "BC proxy",
+    cols = ["task", "robot", "scripted human", "its variations, worst", "held-out poses, worst slice", "BC proxy",
             "proxy / scripted robot's"]
     keep = [i for i in range(len(cols)) if i != 4 or any(r[4] != "-" for r in rows)]
     return (["| " + " | ".join(cols[i] for i in keep) + " |", "|" + " --- |" * len(keep)]

@@ -1,4 +1,4 @@
-"""HR-Handover (MJX) on CPU, tiny sizes: one jitted, vmapped rollout of 8 episodes serves most tests."""
+"""HR-Handover (MJX) on CPU, tiny sizes: one jitted, vmapped rollout of 10 episodes serves most tests."""
 from __future__ import annotations
 
 import jax
@@ -9,7 +9,8 @@ import pytest
 from cogail_envs import mjx_common as mc
 from cogail_envs import get_task
 from cogail_envs.handover.env import Handover
-from cogail_envs.handover.team import H_HOLD
+from cogail_envs.handover.team import H_HOLD, TILT_RANGE
+from cogail_envs.variations import pose_slice
 
 TEAM = get_task("handover").team
 
@@ -24,16 +25,17 @@ def env():
 
 @pytest.fixture(scope="module")
 def rollout(env):
-    """8 episodes in one call: 2 scripted per region, then 2 with an idle robot (one drops the bar).
+    """10 episodes in one call: 2 scripted per region, 2 scripted with the bar presented twisted (roll) and tilted
+    (pitch) beyond the training range (the held-out slices), then 2 with an idle robot (one drops the bar).
 
     Returns final metrics (frozen at the step that ended the episode) and per-step traces.
     """
     T = env.max_episode_steps
 
-    def one(rng, mix, robot_on, release_at):
+    def one(rng, mix, robot_on, release_at, variation):
         k0, k1, k2 = jax.random.split(rng, 3)
         state = env.reset(k0)
-        ts, sid = TEAM.init(env, k1, mix)
+        ts, sid = TEAM.init(env, k1, mix, variation)
 
         def body(carry, key):
             state, ts, finished, metrics = carry
@@ -45,7 +47,8 @@ def rollout(env):
             new_metrics = jax.tree.map(lambda o, n: jnp.where(finished, o, n), metrics, nxt.metrics)
             trace = dict(z=env._obj_pos(nxt.pipeline_state)[2], success=nxt.metrics["success"],
                          done=nxt.done, finished=finished, phase_h=ts.phase[0],
-                         wait=env.replay_hold(state, a[:7])[0], r_grasp=state.info["robot_grasp"])
+                         wait=env.replay_hold(state, a[:7])[0], r_grasp=state.info["robot_grasp"],
+                         tilt=jnp.arccos(mc.bar_normal(env._obj_mat(nxt.pipeline_state))[2]))
             return (new_state, ts, finished | (nxt.done > 0), new_metrics), trace
 
         carry = (state, ts, jnp.array(False), state.metrics)
@@ -53,13 +56,15 @@ def rollout(env):
         return sid, metrics, env.classify_strategy(metrics), trace
 
     n_team = 3 * REPEATS
-    mix = np.zeros((n_team + 2, 3), np.float32)
+    mix = np.zeros((n_team + 4, 3), np.float32)
     mix[np.arange(n_team), np.repeat(np.arange(3), REPEATS)] = 1.0
     mix[n_team:] = 1.0 / 3
-    robot_on = np.array([1.0] * n_team + [0.0, 0.0], np.float32)
-    release = np.array([10**6] * (n_team + 1) + [RELEASE_AT], np.int32)
-    rngs = jax.random.split(jax.random.PRNGKey(7), n_team + 2)
-    out = jax.jit(jax.vmap(one))(rngs, jnp.asarray(mix), jnp.asarray(robot_on), jnp.asarray(release))
+    robot_on = np.array([1.0] * (n_team + 2) + [0.0, 0.0], np.float32)
+    release = np.array([10**6] * (n_team + 3) + [RELEASE_AT], np.int32)
+    variation = np.array([0] * n_team + [pose_slice("roll"), pose_slice("pitch"), 0, 0], np.int32)
+    rngs = jax.random.split(jax.random.PRNGKey(7), n_team + 4)
+    out = jax.jit(jax.vmap(one))(rngs, jnp.asarray(mix), jnp.asarray(robot_on), jnp.asarray(release),
+                                 jnp.asarray(variation))
     return jax.device_get(out)
 
 
@@ -107,6 +112,18 @@ def test_scripted_team_succeeds_in_each_region(rollout):
     np.testing.assert_array_equal(cls[:n], sid[:n])
     length = (~trace["finished"][:n]).sum(1)
     assert np.all((length > 100) & (length < 300))
+
+
+def test_scripted_robot_takes_a_bar_twisted_or_tilted_beyond_the_training_range(rollout):
+    """The held-out roll and pitch slices: the human presents the bar turned about a horizontal axis by more than
+    any training episode, and the scripted robot, aligning its gripper with the bar about all three axes, takes it
+    (a robot that turned only about the vertical would close its fingers on the bar's edges)."""
+    sid, metrics, cls, trace = rollout
+    n = 3 * REPEATS
+    for i in (n, n + 1):
+        held = trace["tilt"][i][~trace["finished"][i]]
+        assert held.max() > TILT_RANGE[1] + 0.01, i  # presented beyond the range
+        assert metrics["success"][i] == 1.0 and cls[i] == sid[i], i
 
 
 def test_object_falls_when_released_in_the_air(rollout):

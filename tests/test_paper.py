@@ -346,6 +346,19 @@ def test_robustness_with_a_patient_human_has_its_own_table(tmp_path):
     assert "| handover | cogail | 90.0 | 81.0 | 0.90 |" in patient
 
 
+def test_each_held_out_slice_is_a_column_and_the_worst_slice_is_judged_alone():
+    """One column per held-out pose slice, after the varied humans whatever order the results list them in, and the
+    worst slice's success over in-distribution replay beside the worst set's."""
+    sets = {"robust-pose_heldout_roll": {"selected": _s(0.54)}, "robust-slow": {"selected": _s(0.3)},
+            "robust-pose_heldout_x": {"selected": _s(0.48)}}
+    rows = paper.robustness_rows({"handover/cogail/uniform": {**_res(0.6, 0.5), "extra_sets": sets}},
+                                 ["handover"], ["cogail"])
+    assert rows[0] == ("| task | method | in-distribution | slow | pose_heldout_roll | pose_heldout_x | "
+                       "worst / in-distribution | worst slice / in-distribution |")
+    assert rows[2] == "| handover | cogail | 60.0 | 30.0 | 54.0 | 48.0 | 0.50 | 0.80 |"
+    assert rows[1].count("---") == 8
+
+
 def test_variants_are_compared_on_the_validation_humans(tmp_path):
     """Every run and variant gets a row of the validation varied humans (plain and with a patient human), whose
     in-distribution figure is the validation split's replay at the selected checkpoint: the basis of a choice."""

@@ -1,6 +1,7 @@
-"""The held-out pose and place slice (``variations.POSE_HELDOUT``) and the object-centric observation features:
-every episode a run trains, validates or is tested on lies in the teams' training ranges, every episode of the
-``pose_heldout`` set lies outside them, and ``obs_frame`` chooses which features the networks read."""
+"""The held-out pose and place slices (``variations.POSE_HELDOUT``, one per degree of freedom) and the object-centric
+observation features: every episode a run trains, validates or is tested on lies in the teams' training ranges, every
+episode of a ``pose_heldout_<axis>`` set lies outside that axis' range alone, and ``obs_frame`` chooses which features
+the networks read."""
 from __future__ import annotations
 
 import jax
@@ -22,51 +23,79 @@ HELD_TASKS = [t for t in ("handover", "seqmanip") if get_task(t).team.held_out]
 _INIT = {}
 
 
-def _draws(task: str, variation: int, n: int = 2000):
-    """The teams' draws of ``n`` episodes (no physics; one compiled program per task, the variation traced): yaw
-    and the hand-over heights."""
+def _axes(task: str, ts) -> dict:
+    """Per degree of freedom of the team's draws: ``[(values, training range)]`` (the bar's turn as magnitudes)."""
+    mod = __import__(f"cogail_envs.{task}.team", fromlist=["x"])
+    a = lambda x: np.abs(np.asarray(x))  # noqa: E731
+    turn = {"roll": [(a(ts.tilt[:, 1]), mod.TILT_RANGE)], "pitch": [(a(ts.tilt[:, 0]), mod.TILT_RANGE)],
+            "yaw": [(a(ts.yaw), mod.YAW_RANGE)]}
+    if task == "handover":
+        return {**turn, "x": [(a(ts.spot[:, 0]), (0.0, mod.REGIONS_X[2, 1]))],
+                "y": [(np.asarray(ts.spot[:, 1]), mod.SPOT_Y)], "z": [(np.asarray(ts.spot[:, 2]), mod.Z_RANGE)]}
+    spot, wait, drop = (np.asarray(x) for x in (ts.spot, ts.wait_pt[:, 0], ts.drop))
+    rng = lambda lo, hi, i: (lo[i], hi[i])  # noqa: E731
+    return {**turn, **{k: [(spot[:, i], rng(mod.SPOT_LO, mod.SPOT_HI, i)), (wait[:, i], rng(mod.WAIT_LO, mod.WAIT_HI, i))]
+                       for i, k in enumerate("xyz")},
+            "place": [(drop[:, 0], rng(mod.DROP_LO, mod.DROP_HI, 0)), (a(drop[:, 1]), (0.0, mod.DROP_HI[1]))]}
+
+
+def _draws(task: str, variation: int, n: int = 1000):
+    """The teams' draws of ``n`` episodes (no physics; one compiled program per task, the variation traced): per
+    axis, whether each episode's value lies beyond the training range (any of its places, for the place axes) and
+    how far (m or rad) at most."""
     if task not in _INIT:
         env, team = cogail_envs.make_env(task), get_task(task).team
         _INIT[task] = jax.jit(jax.vmap(lambda k, v: team.init(env, k, env.uniform_mix(), v)))
     keys = jax.random.split(jax.random.PRNGKey(variation), n)
     ts, _ = _INIT[task](keys, jnp.full((n,), variation, jnp.int32))
-    mod = __import__(f"cogail_envs.{task}.team", fromlist=["x"])
-    z = {"handover": lambda: [(ts.spot[:, 2], mod.Z_RANGE, mod.Z_HELD)],
-         "seqmanip": lambda: [(ts.spot[:, 2], (mod.SPOT_LO[2], mod.SPOT_HI[2]), mod.SPOT_Z_HELD),
-                              (ts.wait_pt[:, 0, 2], (mod.WAIT_LO[2], mod.WAIT_HI[2]), mod.WAIT_Z_HELD)]}[task]()
-    return np.abs(np.asarray(ts.yaw)), mod, [(np.asarray(v), lo, hi) for v, lo, hi in z]
+    out, beyond = {}, {}
+    for axis, parts in _axes(task, ts).items():
+        off = np.max([np.maximum(lo - v, v - hi) for v, (lo, hi) in parts], 0)
+        out[axis], beyond[axis] = off > 0, off.max()  # float32, as drawn: a slice starts at its range's end
+    return out, beyond
 
 
 @pytest.mark.parametrize("task", HELD_TASKS)
-def test_training_draws_stay_in_range_and_the_slice_outside(task):
-    """Default, varied (and following-partner) episodes: yaw and heights in the training range; the held-out
-    slice: each episode has its yaw or its height beyond it, and the two kinds each cover their band."""
-    for v in [0, *range(1, len(VARIATIONS) + 1), 6 | FOLLOWING_PARTNER]:
-        yaw, mod, heights = _draws(task, v)
-        assert yaw.max() <= mod.YAW_RANGE[1] + 1e-6, (task, v)
-        for h, (lo, hi), _ in heights:
-            assert h.min() >= lo - 1e-6 and h.max() <= hi + 1e-6, (task, v)
-    yaw, mod, heights = _draws(task, POSE_HELDOUT)
-    out_yaw = yaw > mod.YAW_RANGE[1]
-    out_z = np.zeros_like(out_yaw)
-    for h, (lo, hi), (hlo, hhi) in heights:
-        assert h.max() <= hhi + 1e-6
-        out_z |= h > hi
-    assert np.all(out_yaw ^ out_z)  # exactly one of the two outside the training range
-    assert 0.35 < out_yaw.mean() < 0.65 and yaw[out_yaw].max() > mod.YAW_HELD[1] - 0.05
-    assert yaw.max() <= mod.YAW_HELD[1] + 1e-6
+def test_training_draws_stay_in_range_and_each_slice_outside_its_own(task):
+    """Default, varied (and following-partner) episodes: every degree of freedom in its training range; each axis'
+    held-out slice (``pose_slice(axis)``): that axis beyond its range in every episode, by at most a few cm or 0.35
+    rad, and every other axis in range; ``POSE_HELDOUT`` alone: exactly one axis beyond, each of the team's drawn."""
+    from cogail_envs.variations import PROMPT_ROBOT, pose_slice
+
+    slices = get_task(task).team.held_out_slices
+    assert set(slices) >= {"roll", "pitch", "yaw", "x", "y", "z"}
+    for v in [0, *range(1, len(VARIATIONS) + 1), 6 | FOLLOWING_PARTNER, PROMPT_ROBOT]:
+        out, _ = _draws(task, v, 300)
+        assert not any(o.any() for o in out.values()), (task, v)
+    for axis in slices:
+        out, beyond = _draws(task, pose_slice(axis))
+        assert out[axis].all(), (task, axis)
+        assert beyond[axis] <= (0.35 if axis in ("roll", "pitch", "yaw") else 0.06), (task, axis, beyond[axis])
+        assert not any(out[a].any() for a in slices if a != axis), (task, axis)
+    out, _ = _draws(task, POSE_HELDOUT)
+    count = np.sum([out[a] for a in slices], 0)
+    assert np.all(count == 1) and all(out[a].mean() > 0.5 / len(slices) for a in slices)
 
 
-def test_slice_is_an_evaluation_set_with_its_own_seeds():
-    """The slice is evaluated (the protocol's varied humans) but never trained on: its generator seeds differ from
-    every split's and every variation's, and the training set's varied humans are the VARIATIONS only."""
+def test_slices_are_evaluation_sets_with_their_own_seeds():
+    """The slices are evaluated (the protocol's varied humans, one set per axis) but never trained on: their
+    generator seeds differ from every split's, every variation's and each other's, and the training set's varied
+    humans are the VARIATIONS only."""
+    from cogail_envs.variations import slice_names, variation_id
+
+    held = set()
     for task in HELD_TASKS:
         env = cogail_envs.make_env(task)
-        assert protocol_variations(env)[-1] == "pose_heldout" and "pose_heldout" not in VARIATIONS
+        names = slice_names(get_task(task).team.held_out_slices)
+        assert protocol_variations(env) == tuple(VARIATIONS) + names
+        assert all(variation_id(n) & POSE_HELDOUT for n in names) and not set(names) & set(VARIATIONS)
+        held |= {variation_seed(n, s) for n in names for s in ("test", "validation", "train")}
+        assert len({variation_seed(n, "test") for n in names}) == len(names)
     assert protocol_variations(cogail_envs.make_env("fetchq")) == tuple(VARIATIONS)
     seeds = {variation_seed(v, s) for v in VARIATIONS for s in ("test", "validation", "train")} | {0, 1, 2}
-    held = {variation_seed("pose_heldout", s) for s in ("test", "validation", "train")}
     assert not held & seeds
+    with pytest.raises(ValueError, match="pose_heldout_<axis>"):
+        variation_id("pose_heldout_spin")
 
 
 def test_the_validation_slice_is_as_large_as_the_validation_split(monkeypatch):
@@ -82,17 +111,17 @@ def test_the_validation_slice_is_as_large_as_the_validation_split(monkeypatch):
         sets.robustness_paths(TrainConfig(task=task), env=cogail_envs.make_env(task))
         val, test = io.default_count(task, "validation"), io.default_count(task, "test")
         assert val > test
-        assert asked == [("test", 0, protocol_variations(cogail_envs.make_env(task))),
-                         ("validation", val, ("pose_heldout",))], (task, asked)
+        names = protocol_variations(cogail_envs.make_env(task))
+        assert asked == [("test", 0, names), ("validation", val, names[len(VARIATIONS):])], (task, asked)
 
 
 @pytest.mark.parametrize("task", HELD_TASKS)
 def test_object_frame_features(task):
-    """The features are the env's last 22 dims; ``obs_frame="world"`` normalises them (only them) to 0, "object" the
+    """The features are the env's last 34 dims; ``obs_frame="world"`` normalises them (only them) to 0, "object" the
     absolute orientations (only them), "both" none."""
     env = cogail_envs.make_env(task)
     dims = np.asarray(env.object_frame_dims)
-    assert len(dims) == 22 and dims[-1] == env.observation_size - 1
+    assert len(dims) == 34 and dims[-1] == env.observation_size - 1
     s = jax.jit(env.reset_from)(env.sample_init(jax.random.PRNGKey(3)))
     obs = np.asarray(s.obs)[None].repeat(4, 0)
     expert = {"obs": obs + np.arange(4)[:, None], "demo": np.array([0, 0, 1, 1])}

@@ -17,7 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from cogail_envs import get_task
-from cogail_envs.variations import HELD_OUT
+from cogail_envs.variations import is_held_out_set
 
 from . import io, recorded, varied
 
@@ -59,8 +59,8 @@ def split_path(cfg, split: str, make: bool = False, env=None, verbose: bool = Tr
 
 def robustness_paths(cfg, make: bool = False, env=None, verbose: bool = True) -> dict[str, Path]:
     """``{"robust-<variation>": file}`` of the run's varied humans (the test split's), and where the task's team
-    draws a held-out pose slice, ``"validation-robust-pose_heldout"``: the validation split's episodes of that
-    slice, as many as the validation split has (settings are chosen by it beside the validation replay, so it is
+    draws held-out pose slices, ``"validation-robust-pose_heldout_<axis>"`` per slice: the validation split's episodes
+    of that slice, as many as the validation split has (settings are chosen by it beside the validation replay, so it is
     read on as many episodes; the test's, the size of the test split, are reported); {} where the task's team has
     no variations (or no team)."""
     team = get_task(cfg.task).team
@@ -69,7 +69,7 @@ def robustness_paths(cfg, make: bool = False, env=None, verbose: bool = True) ->
     env = env or _task_env(cfg)
     names = varied.protocol_variations(env)
     out = varied.ensure_robustness_sets(env, mix=cfg.mix, variations=names, verbose=verbose, make=make)
-    held = [v for v in names if v == HELD_OUT]
+    held = [v for v in names if is_held_out_set(v)]
     if held:
         val = varied.ensure_robustness_sets(env, mix=cfg.mix, split=VALIDATION, variations=held, verbose=verbose,
                                             make=make, num=io.default_count(env.name, VALIDATION))

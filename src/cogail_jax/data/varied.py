@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cogail_envs.variations import HELD_OUT, VARIATIONS, variation_id
+from cogail_envs.variations import HELD_OUT, POSE_AXES, VARIATIONS, held_out_sets, variation_id
 
 from cogail_envs import team_of
 
@@ -67,22 +67,25 @@ class VariedEpisodes(NamedTuple):
     gen_index: np.ndarray
 
 
-HELD_OUT_SEED = 50  # + the split's seed: the held-out pose slice's generator seed
+HELD_OUT_SEED = 50  # + the split's seed: the held-out pose slice's generator seed (+ 1 + the axis' index per axis)
 
 
 def variation_seed(variation: str, split: str = "test") -> int:
     if split not in SPLIT_SEED:
         raise ValueError(f"unknown split {split!r}: use {', '.join(SPLIT_SEED)}")
-    return SPLIT_SEED[split] + (HELD_OUT_SEED if variation == HELD_OUT else VARIATIONS.index(variation))
+    if variation == HELD_OUT:
+        return SPLIT_SEED[split] + HELD_OUT_SEED
+    if variation.startswith(HELD_OUT + "_"):
+        return SPLIT_SEED[split] + HELD_OUT_SEED + 1 + POSE_AXES.index(variation[len(HELD_OUT) + 1:])
+    return SPLIT_SEED[split] + VARIATIONS.index(variation)
 
 
 def protocol_variations(env) -> tuple[str, ...]:
-    """The evaluation's varied humans of ``env``'s task: :data:`VARIATIONS`, and ``pose_heldout`` (the held-out
-    pose and place slice) where its team draws one."""
+    """The evaluation's varied humans of ``env``'s task: :data:`VARIATIONS`, and where its team draws held-out pose
+    slices one set per slice (``pose_heldout_<axis>``, ``variations.held_out_sets``)."""
     from cogail_envs import get_task
 
-    team = get_task(env.name).team
-    return tuple(VARIATIONS) + ((HELD_OUT,) if team is not None and team.held_out else ())
+    return tuple(VARIATIONS) + held_out_sets(get_task(env.name).team)
 
 
 def robust_path(task: str, variation: str, mix: str = "uniform", split: str = "test", num: int = 0) -> Path:

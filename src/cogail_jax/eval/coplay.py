@@ -4,8 +4,9 @@ Partners of the robot (each episode's human):
 
 * ``scripted``: the task's scripted human (``Team.human_act``), seeing only what a person at the table sees (the
   physics state), never the robot's plan or phase; and each of its variations (:mod:`cogail_envs.variations`),
-  named after it; where the team draws a held-out pose and place slice (``Team.held_out``), ``pose_heldout``: that
-  human presenting the object in the slice, the closed-loop counterpart of the replayed ``robust-pose_heldout`` set
+  named after it; where the team draws held-out pose and place slices (``Team.held_out``), ``pose_heldout_<axis>``
+  per slice (``Team.held_out_slices``): that human presenting the object in the slice of that one degree of freedom,
+  the closed-loop counterpart of the replayed ``robust-pose_heldout_<axis>`` set
   (a reacting human waits for the robot wherever the recording's human went on with its own partner's timing);
 * ``proxy``: a human proxy, a small MLP obs -> a_H (deterministic mean) trained by behaviour cloning on the TEST
   split's human actions alone (Carroll et al., NeurIPS 2019), from a fixed key (:func:`train_proxy`).
@@ -67,13 +68,13 @@ def _team(env):
 
 def partners(env) -> list[str]:
     """The task's co-play partners: ``scripted`` and each variation's name where the team has ``human_act``
-    (variations where it implements them; ``pose_heldout`` where it draws a held-out pose slice), then ``proxy``."""
-    from cogail_envs.variations import HELD_OUT, VARIATIONS
+    (variations where it implements them; ``pose_heldout_<axis>`` per held-out pose slice it draws), then ``proxy``."""
+    from cogail_envs.variations import VARIATIONS, held_out_sets
 
     team = _team(env)
     out = []
     if team is not None and team.human_act is not None:
-        out = [SCRIPTED, *(VARIATIONS if team.variations else ()), *((HELD_OUT,) if team.held_out else ())]
+        out = [SCRIPTED, *(VARIATIONS if team.variations else ()), *held_out_sets(team)]
     return out + [PROXY]
 
 
@@ -302,6 +303,8 @@ def make_coplay_fn(env, cfg=None, nets=None):
             a_r = actions.agent_act(spec.robot_discrete, mean[Ah:], jax.random.fold_in(k_r, 2))
         if robot_act is not None:
             ts_r, a_s = robot_act(env, ts_r, state, k_r)
+            if hasattr(env, "policy_robot_action"):  # the env takes the robot's actions in the object's frame
+                a_s = env.policy_robot_action(state.obs, a_s)
             a_r = jnp.where(ep["scripted_robot"], a_s, a_r)
         return jnp.concatenate([a_h, a_r]), a_h, ts_h, ts_r
 
@@ -478,8 +481,8 @@ def markdown(c: dict) -> list[str]:
     extra = (f"; with the scripted robot it succeeds in {100 * p['success_with_scripted_robot']:.1f} %"
              if p.get("success_with_scripted_robot") is not None else "")
     lines += ["", f"scripted: the task's scripted human, reacting to what the robot does and seeing only the state; "
-              f"the variations: that human varied (pose_heldout: presenting the object in the held-out pose and place "
-              f"slice); proxy: an MLP {tuple(p['hidden'])} on the state and its change "
+              f"the variations: that human varied (pose_heldout_<axis>: presenting the object in the held-out slice of "
+              f"that degree of freedom, every other in range); proxy: an MLP {tuple(p['hidden'])} on the state and its change "
               f"over the last 1 and 3 steps, behaviour-cloned on the "
               f"{p['split']} split's humans alone ({p['episodes']} episodes, {p['samples']} steps, {p['steps']} "
               f"updates, final loss {p['loss']:.4g}{extra}). The scripted robot acts on the state alone too "

@@ -125,21 +125,24 @@ def test_scripted_pair_succeeds_in_coplay(scripted_coplay, task):
         assert set(out["strategy"][0].tolist()) == {1, 2}, out
 
 
-def test_a_held_out_pose_human_is_a_partner_where_the_team_draws_one():
-    """Where the team draws a held-out pose slice, ``pose_heldout`` is a co-play partner: its episodes carry the
-    slice's variation id (the scripted human presents the object there) and start as the other partners' do."""
-    from cogail_envs.variations import HELD_OUT, POSE_HELDOUT
+def test_each_held_out_pose_slice_is_a_partner_where_the_team_draws_them():
+    """Where the team draws held-out pose slices, each (``pose_heldout_<axis>``) is a co-play partner: its episodes
+    carry that slice's variation id (the scripted human presents the object there) and start as the other partners'
+    do."""
+    from cogail_envs.variations import pose_slice, slice_names
 
-    for task, held in (("fetchq", False), ("handover", True), ("seqmanip", True)):
+    for task in ("fetchq", "handover", "seqmanip"):
         env = make_env(task)
         names = coplay.partners(env)
-        assert (HELD_OUT in names) == held and names[-1] == coplay.PROXY, (task, names)
+        held = slice_names(get_task(task).team.held_out_slices) if task != "fetchq" else ()
+        assert tuple(n for n in names if n.startswith("pose_heldout")) == held and names[-1] == coplay.PROXY, task
     env = make_env("handover")
-    batch = coplay.episode_batch(env, [coplay.SCRIPTED, HELD_OUT], 3, ("learned",))
-    held = batch["partner"] == HELD_OUT
-    assert (batch["variation"][held] == POSE_HELDOUT).all() and (batch["variation"][~held] == 0).all()
-    assert (batch["key"][held] == batch["key"][~held]).all()  # the same starts as the scripted human's
-
+    batch = coplay.episode_batch(env, [coplay.SCRIPTED, "pose_heldout_roll", "pose_heldout_x"], 3, ("learned",))
+    for axis in ("roll", "x"):
+        held = batch["partner"] == f"pose_heldout_{axis}"
+        assert (batch["variation"][held] == pose_slice(axis)).all()
+        assert (batch["key"][held] == batch["key"][batch["partner"] == coplay.SCRIPTED]).all()  # the same starts
+    assert (batch["variation"][batch["partner"] == coplay.SCRIPTED] == 0).all()
 
 
 def test_the_proxy_plays_more_episodes_from_the_same_starts(fetchq):

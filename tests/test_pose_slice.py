@@ -27,7 +27,7 @@ def _axes(task: str, ts) -> dict:
     """Per degree of freedom of the team's draws: ``[(values, training range)]`` (the bar's turn as magnitudes)."""
     mod = __import__(f"cogail_envs.{task}.team", fromlist=["x"])
     a = lambda x: np.abs(np.asarray(x))  # noqa: E731
-    turn = {"roll": [(a(ts.tilt[:, 1]), mod.TILT_RANGE)], "pitch": [(a(ts.tilt[:, 0]), mod.TILT_RANGE)],
+    turn = {"roll": [(a(ts.roll), mod.TILT_RANGE)], "pitch": [(a(ts.pitch), mod.TILT_RANGE)],
             "yaw": [(a(ts.yaw), mod.YAW_RANGE)]}
     if task == "handover":
         return {**turn, "x": [(a(ts.spot[:, 0]), (0.0, mod.REGIONS_X[2, 1]))],

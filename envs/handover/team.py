@@ -128,7 +128,8 @@ class TeamState(NamedTuple):
     # for how many steps it has seen the bar held still
     seen: jax.Array = np.zeros((3,), np.float32)
     still: jax.Array = np.zeros((), np.int32)
-    tilt: jax.Array = np.zeros((2,), np.float32)  # (pitch, roll) of the presented bar (rad)
+    pitch: jax.Array = np.zeros((), np.float32)  # the presented bar: its long axis tilted up or down (rad)
+    roll: jax.Array = np.zeros((), np.float32)  # and twisted about its long axis (rad)
 
 
 def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamState, jax.Array]:
@@ -170,8 +171,8 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
         strategy=jnp.stack([strategy, strategy]),
         spot=spot,
         yaw=slice_draw(ks[4], held["yaw"], (-YAW_RANGE[1], YAW_RANGE[1]), YAW_HELD, symmetric=True),
-        tilt=jnp.stack([slice_draw(k, held[a], (-TILT_RANGE[1], TILT_RANGE[1]), TILT_HELD, symmetric=True)
-                        for k, a in ((kp[4], "pitch"), (kp[5], "roll"))]),
+        pitch=slice_draw(kp[4], held["pitch"], (-TILT_RANGE[1], TILT_RANGE[1]), TILT_HELD, symmetric=True),
+        roll=slice_draw(kp[5], held["roll"], (-TILT_RANGE[1], TILT_RANGE[1]), TILT_HELD, symmetric=True),
         vmax=vmax.at[0].set(jnp.minimum(vmax[0] * pace, 1.0)),
         amax=amax.at[0].multiply(pace),
         gain=gain.at[0].multiply(pace),
@@ -229,7 +230,7 @@ def rot_action(d, g: mc.Gripper, target, gain=0.25, vmax=0.9):
 
 def presented(ts: TeamState) -> jax.Array:
     """The orientation (world) the human presents the bar at."""
-    return mc.pose_mat(ts.tilt[1], ts.tilt[0], ts.yaw)
+    return mc.pose_mat(ts.roll, ts.pitch, ts.yaw)
 
 
 def _context(env, ts: TeamState, state) -> dict:

@@ -171,7 +171,7 @@ def rot_action(d, g: mc.Gripper, target, gain=0.25, vmax=0.9):
 
 def presented(ts: TeamState) -> jax.Array:
     """The orientation (world) the human carries, offers and holds the bar at."""
-    return mc.pose_mat(ts.tilt[1], ts.tilt[0], ts.yaw)
+    return mc.pose_mat(ts.roll, ts.pitch, ts.yaw)
 
 
 def _flat(yaw) -> jax.Array:
@@ -226,7 +226,8 @@ class TeamState(NamedTuple):
     still: jax.Array = np.zeros((), np.int32)
     guess: jax.Array = np.zeros((), np.int32)
     early: jax.Array = np.zeros((), bool)  # the robot starts towards the drop as the drawer is being opened
-    tilt: jax.Array = np.zeros((2,), np.float32)  # (pitch, roll) of the bar as the human carries and holds it (rad)
+    pitch: jax.Array = np.zeros((), np.float32)  # the bar as the human carries and holds it: its long axis tilted up or down (rad)
+    roll: jax.Array = np.zeros((), np.float32)  # and twisted about its long axis (rad)
 
 
 def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamState, jax.Array]:
@@ -273,8 +274,8 @@ def team_init(env, rng: jax.Array, mix: jax.Array, variation=0) -> tuple[TeamSta
         wait_pt=jnp.stack([wait_h,
                            u(ks[3], [0.04, 0.13, 0.24], [0.10, 0.17, 0.29], (3,))]),
         yaw=slice_draw(ks[4], held["yaw"], (-YAW_RANGE[1], YAW_RANGE[1]), YAW_HELD, symmetric=True),
-        tilt=jnp.stack([slice_draw(k, held[a], (-TILT_RANGE[1], TILT_RANGE[1]), TILT_HELD, symmetric=True)
-                        for k, a in ((kp[10], "pitch"), (kp[11], "roll"))]),
+        pitch=slice_draw(kp[10], held["pitch"], (-TILT_RANGE[1], TILT_RANGE[1]), TILT_HELD, symmetric=True),
+        roll=slice_draw(kp[11], held["roll"], (-TILT_RANGE[1], TILT_RANGE[1]), TILT_HELD, symmetric=True),
         drop=drop,
         open_amt=u(ks[6], 0.125, 0.155),
         handle_y=jnp.stack([u(ks[7], -0.04, -0.005), u(ks[8], 0.005, 0.04)]),

@@ -3,8 +3,9 @@
 ``python experiments/pose_slices.py --task handover --num 16``: ``num`` episodes of the team in range (no variation)
 and in each of its held-out slices (``Team.held_out_slices``: ``variation | pose_slice(axis)``), made by the task's
 one generator program (the slices share its calls); prints per set the team's success with the drawn strategy and the
-share that also validates by open-loop re-simulation (what the evaluation sets keep), and writes them as JSON with
-``--out``."""
+share that also validates by open-loop re-simulation (what the evaluation sets keep), with ``--coplay`` the scripted
+human of each set with the co-play scripted robot (``Team.robot_act``, on observables only), and writes them as JSON
+with ``--out``."""
 from __future__ import annotations
 
 import argparse
@@ -28,6 +29,8 @@ def main(argv=None) -> None:
     p.add_argument("--batch", type=int, default=None)
     p.add_argument("--slices", default="", help="comma-separated axes (default: the team's)")
     p.add_argument("--validate", action="store_true", help="also re-simulate each episode open-loop")
+    p.add_argument("--coplay", action="store_true",
+                   help="also the scripted human of each set with the co-play scripted robot (observables only)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     env = cogail_envs.make_env(a.task)
@@ -55,6 +58,20 @@ def main(argv=None) -> None:
         print(f"| {name} | {int(ok.sum())}/{len(ok)} ({100 * ok.mean():.0f} %) | {v} | "
               f"{res[name]['length'] or 0:.0f} |", flush=True)
     print(f"({time.time() - t0:.0f} s)")
+    if a.coplay:
+        from cogail_jax.eval import coplay
+
+        t0 = time.time()
+        partners = [coplay.SCRIPTED] + [name for name, _ in sets[1:]]
+        batch = coplay.episode_batch(env, partners, a.num, ("scripted",), first=a.num)
+        out = jax.device_get(coplay.make_coplay_fn(env)(None, None, None, batch))
+        print(f"| {a.task} co-play partner | scripted robot (observables only) |")
+        print("| --- | --- |")
+        for name in partners:
+            ok = np.asarray(out["success"][0])[np.asarray(batch["partner"]) == name]
+            res.setdefault("coplay", {})[name] = float(ok.mean())
+            print(f"| {name} | {int(ok.sum())}/{len(ok)} ({100 * ok.mean():.0f} %) |", flush=True)
+        print(f"({time.time() - t0:.0f} s)")
     if a.out:
         with open(a.out, "w") as f:
             json.dump(res, f, indent=1)

@@ -45,7 +45,7 @@ from .generate import (Request, chunks, generator_batch, replay_fn, resolve_mix,
                        training_flags, training_env)
 from .io import _stored_version, data_dir, default_count, load_demos, missing, save_demos
 
-ROBUST_VERSION = 2  # bump when the variations change (cached files are regenerated)
+ROBUST_VERSION = 3  # bump when the variations change (cached files are regenerated)
 SPLIT_SEED = {"test": 100, "validation": 200, "train": 300}  # + the variation's index
 PREFIX = "robust-"
 

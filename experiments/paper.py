@@ -873,12 +873,14 @@ def tables(results: dict, tasks, methods, out: Path, readme: Path | None = None)
         if rob:
             rel = Path(os.path.relpath(out / "robustness.md", readme.resolve().parent)).as_posix()
             mine = rob[:2] + [r for r in rob[2:] if r.split("|")[2].strip().startswith("cogail")]
-            block += ["", "Co-GAIL's replay against varied humans (selected checkpoint, test, %; the last column: the "
-                      f"worst variation's success over in-distribution replay; every method: [{rel}]({rel})):", "",
-                      *mine]
+            last = ("the last two columns: the worst set's and the worst held-out pose slice's success over "
+                    "in-distribution replay" if "worst slice" in rob[0] else
+                    "the last column: the worst variation's success over in-distribution replay")
+            block += ["", f"Co-GAIL's replay against varied humans (selected checkpoint, test, %; {last}; every method: "
+                      f"[{rel}]({rel})):", "", *mine]
         if coplay:
             rel = Path(os.path.relpath(out / "coplay.md", readme.resolve().parent)).as_posix()
-            held = " and presenting the object in the held-out pose slice" if "held-out poses" in coplay[0] else ""
+            held = " and presenting the object in the held-out pose slices" if "held-out poses" in coplay[0] else ""
             block += ["", "Closed-loop co-play: each method's robot with a reacting human, the task's scripted human and a "
                       "BC proxy of the test humans, beside the scripted robot (selected checkpoint, %; with each "
                       f"variation of the scripted human{held}: [{rel}]({rel})):", "",

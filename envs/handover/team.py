@@ -1,13 +1,14 @@
 """HR-Handover's scripted human-human team (the env is :mod:`cogail_envs.handover`).
 
 The team draws the region from ``mix`` and then a continuous spot inside it (regions are separated by 5 cm
-gaps around the classification thresholds so every demo is labelled by its drawn region), the yaw at which
-the human presents the bar, speeds, reaction delays, pauses and action noise; motions are proportional control
+gaps around the classification thresholds so every demo is labelled by its drawn region), the orientation at
+which the human presents the bar (roll, pitch and yaw), speeds, reaction delays, pauses and action noise; motions are proportional control
 with velocity and acceleration limits (smooth, minimum-jerk-like bell-shaped speed profiles).
 
 Human: wait, reach above the bar, descend, close, lift, carry to the spot, hold still there until the robot
 has it (then let go), retreat. Robot: wait, stage behind the bar's far end, move over it once the human
-holds still, descend, close, wait for the human to let go, retreat.
+holds still (along the bar's normal, its gripper aligned with the bar about all three axes), descend, close, wait
+for the human to let go, retreat.
 
 How the robot decides: it never reads the strategy (region); WHERE it goes is the bar's actual pose (state),
 wherever the human carries it. WHEN: it starts once the human has lifted the bar and moves over the bar
@@ -102,7 +103,7 @@ class TeamState(NamedTuple):
 
     strategy: jax.Array   # (2,) int32 region 1..3 (same for both; the robot itself is reactive)
     spot: jax.Array       # (3,) bar-centre target of the handover (world)
-    yaw: jax.Array        # () carry yaw of the human (rad)
+    yaw: jax.Array        # () the presented bar's yaw (rad)
     vmax: jax.Array       # (2,) speed limits (action units)
     amax: jax.Array       # (2,) acceleration limits (action units / step)
     gain: jax.Array       # (2,) proportional gains

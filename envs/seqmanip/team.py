@@ -1,8 +1,8 @@
 """HR-SeqManip's scripted human-human team (the env is :mod:`cogail_envs.seqmanip`).
 
 Two phase machines (human ``H_*``, robot ``R_*``; successor tables ``NEXT_H`` / ``NEXT_R`` per strategy).
-The strategy is drawn from ``mix``; within a strategy the team varies the handover spot, the yaw at which the
-human holds the bar, the waiting points (ranges below), how far the drawer is pulled
+The strategy is drawn from ``mix``; within a strategy the team varies the handover spot, the orientation at which
+the human carries and holds the bar (roll, pitch and yaw), the waiting points, the drop place (ranges below), how far the drawer is pulled
 (12.5-15.5 cm), where each hand grasps the handle, where and from how high the object is dropped, speeds,
 acceleration limits, gains, start and reaction delays, a pause after lifting and action noise. Motions are
 proportional control with velocity and acceleration limits (bell-shaped, minimum-jerk-like speed
@@ -195,7 +195,7 @@ class TeamState(NamedTuple):
     strategy: jax.Array   # (2,) int32 strategy each agent follows (1 human-hands-over, 2 robot-opens)
     spot: jax.Array       # (3,) object-centre target of the handover (strategy 1, world)
     wait_pt: jax.Array    # (2, 3) waiting points: human with the object (s2), robot with the object (s1)
-    yaw: jax.Array        # () carry yaw of the human (rad)
+    yaw: jax.Array        # () the carried bar's yaw (rad)
     drop: jax.Array       # (4,) drop point: x past the drawer's front inner wall, y, release height; its yaw bound
     open_amt: jax.Array   # () how far the opener pulls the drawer (m)
     handle_y: jax.Array   # (2,) where each agent grasps the handle (y offset from its centre)

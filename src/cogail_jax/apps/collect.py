@@ -548,6 +548,7 @@ def open_table(task: str, out: str | Path | None = None, port: int = 8766, lan: 
     (``server.collector``, already stepping), ready for ``serve_forever``."""
     import cogail_envs
 
+    controls.on_host()
     env = cogail_envs.make_env(task)
     spec = cogail_envs.get_task(task)
     out = Path(out) if out else data.data_dir() / f"{env.name}_people.hdf5"

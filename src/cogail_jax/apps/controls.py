@@ -32,6 +32,15 @@ HELP = {
 PAD_KEYS = {(0, 1): "ArrowRight", (0, -1): "ArrowLeft", (1, 1): "ArrowDown", (1, -1): "ArrowUp"}
 
 
+def on_host() -> None:
+    """Run every computation that follows on the host's CPU. A page steps one environment at a person's pace, so each
+    step's latency is what counts: the CPU gives it in milliseconds, where an accelerator launches many small kernels per
+    step (MJX's handover on one H200: 3.5 steps/s against the 15 asked; the 2-core CPU kept 15)."""
+    import jax
+
+    jax.config.update("jax_default_device", jax.devices("cpu")[0])
+
+
 def discrete_action(size: int, choices: dict, idle: int, keys, axes=(), buttons=()) -> tuple[np.ndarray, bool]:
     """A discrete agent's one-hot action from the pressed keys: the choice of the last pressed key that the task's
     ``play_keys`` maps (``choices``: key code -> choice), else ``idle`` (e.g. stay); a gamepad's left stick past half

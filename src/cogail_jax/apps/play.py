@@ -112,7 +112,7 @@ def load_policy(run_dir: str | Path, cfg: TrainConfig, label: str, which: str = 
         tree = store.load(step)
     except ckpt.CheckpointError as e:
         raise RunError(f"{e}; pass another --checkpoint or --run, or retrain the run")
-    one = lambda tree: jax.tree.map(lambda x: x[i], tree)  # noqa: E731
+    one = lambda tree: jax.tree.map(lambda x: np.asarray(x[i]), tree)  # noqa: E731  (host arrays: see on_host)
     _, robot_step = rollouts.make_robot_step(s.cfg, s.env, s.nets)
     policy = Policy(label, run_dir, cfg.method, int(cfg.seeds[i]), int(step), cfg.history,
                     one(tree["params"]), one(tree["norm"]), jax.jit(robot_step))
@@ -315,6 +315,7 @@ def open_study(runs: list[str | Path], task: str | None = None, port: int = 8765
     (``server.app``), ready for ``serve_forever``."""
     import cogail_envs
 
+    controls.on_host()
     if not runs:
         raise RunError("no run given: pass --run DIR (a training run's directory; repeat it for several)")
     cfgs = [read_run_config(r, task) for r in runs]

@@ -604,7 +604,7 @@ class FrameRenderer:
     Uses ``mujoco.Renderer`` when MuJoCo can make its own context (``MUJOCO_GL`` = egl/osmesa when
     ``mujoco`` was imported, or a display). Otherwise (the usual headless case: ``mujoco`` imported
     before anybody set ``MUJOCO_GL``) it creates an EGL context by hand and renders with the low-level
-    ``mjr_*`` API. Without any OpenGL it falls back to a matplotlib top + side projection of the boxes.
+    ``mjr_*`` API. Without any OpenGL it falls back to a top + side projection of the boxes drawn with numpy.
     """
 
     def __init__(self, m: mujoco.MjModel):
@@ -615,7 +615,7 @@ class FrameRenderer:
         try:
             rend, ctx = self._get(width, height)
         except Exception:  # no OpenGL at all
-            return _render_mpl(self.m, d, width, height)
+            return _render_boxes(self.m, d, width, height)
         if ctx is not None:
             ctx.make_current()
         rend.update_scene(d, camera=camera)
@@ -666,25 +666,27 @@ class _LowLevelRenderer:
         return img[::-1]
 
 
-def _render_mpl(m: mujoco.MjModel, d: mujoco.MjData, width: int, height: int) -> np.ndarray:
-    """Fallback: top (x-y) and side (y-z) projections of the bodies' box geoms with matplotlib."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 2, figsize=(width / 80, height / 80), dpi=80)
+def _render_boxes(m: mujoco.MjModel, d: mujoco.MjData, width: int, height: int) -> np.ndarray:
+    """Fallback without OpenGL: top (x-y) and side (y-z) projections of the bodies' box geoms, each box's projected
+    bounding rectangle filled in its colour (lower boxes first), drawn with numpy in about a millisecond (so that
+    `cogail play` and `cogail collect` keep their step rate on a machine without OpenGL)."""
+    img = np.full((height, width, 3), 255, np.uint8)
     corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
-    for ax, (i, j), title in ((axes[0], (0, 1), "top"), (axes[1], (1, 2), "side")):
-        for g in range(m.ngeom):
-            if m.geom_type[g] != mujoco.mjtGeom.mjGEOM_BOX or m.geom_bodyid[g] == 0:
-                continue
-            pts = d.geom_xpos[g] + (corners * m.geom_size[g]) @ d.geom_xmat[g].reshape(3, 3).T
-            lo, hi = pts[:, [i, j]].min(0), pts[:, [i, j]].max(0)
-            ax.add_patch(plt.Rectangle(lo, *(hi - lo), color=m.geom_rgba[g][:3]))
-        ax.set_xlim(-0.5, 0.5)
-        ax.set_ylim(*((-0.5, 0.5) if title == "top" else (-0.05, 0.5)))
-        ax.set_aspect("equal")
-        ax.set_title(title)
-    fig.canvas.draw()
-    img = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
-    plt.close(fig)
+    boxes = [g for g in range(m.ngeom) if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX and m.geom_bodyid[g] != 0]
+    pts = {g: d.geom_xpos[g] + (corners * m.geom_size[g]) @ d.geom_xmat[g].reshape(3, 3).T for g in boxes}
+    half = width // 2
+    # panel: (projected axes, limits, the axis drawn last-on-top)
+    for p, ((i, j), (lo_i, hi_i), (lo_j, hi_j), depth) in enumerate((((0, 1), (-0.5, 0.5), (-0.5, 0.5), 2),
+                                                                     ((1, 2), (-0.5, 0.5), (-0.05, 0.5), 0))):
+        x0, w = p * half, half if p == 0 else width - half
+        scale = min((w - 8) / (hi_i - lo_i), (height - 8) / (hi_j - lo_j))
+        ox, oy = x0 + (w - scale * (hi_i - lo_i)) / 2, (height + scale * (hi_j - lo_j)) / 2
+        img[int(oy - scale * (hi_j - lo_j)):int(oy) + 1, int(ox):int(ox + scale * (hi_i - lo_i)) + 1] = 240
+        order = sorted(boxes, key=lambda g: pts[g][:, depth].max() * (1 if depth == 2 else -1))
+        for g in order:
+            lo, hi = pts[g][:, [i, j]].min(0), pts[g][:, [i, j]].max(0)
+            c0, c1 = (int(np.clip(ox + scale * (v - lo_i), x0, x0 + w)) for v in (lo[0], hi[0]))
+            r0, r1 = (int(np.clip(oy - scale * (v - lo_j), 0, height)) for v in (hi[1], lo[1]))
+            img[r0:max(r1, r0 + 1), c0:max(c1, c0 + 1)] = (np.asarray(m.geom_rgba[g][:3]) * 255).astype(np.uint8)
+    img[:, half - 1:half + 1] = 128
     return img

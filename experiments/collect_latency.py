@@ -74,7 +74,15 @@ def main(argv=None) -> int:
     p.add_argument("--code-human", default=None)
     p.add_argument("--code-robot", default=None)
     p.add_argument("--out", default=None, help="episodes file (default: a temporary file)")
+    p.add_argument("--no-opengl", action="store_true",
+                   help="draw an MJX task's frames with the fallback used on machines without OpenGL")
     a = p.parse_args(argv)
+    if a.no_opengl:
+        from cogail_envs.mjx_common import FrameRenderer
+
+        def no_gl(self, *args):
+            raise RuntimeError("no OpenGL")
+        FrameRenderer._get = no_gl
 
     import cogail_envs
     from cogail_jax.apps import collect

@@ -99,6 +99,26 @@ def test_env_contract_render_and_human_position(contract):
     assert np.asarray(env.human_position(s0)).ndim == 1
 
 
+def test_render_without_opengl_draws_the_scene(contract, monkeypatch):
+    """With no OpenGL, an MJX task's frames are the numpy top + side projection: the boxes in their colours, and a
+    scene that moved draws differently."""
+    from cogail_envs.mjx_common import FrameRenderer
+
+    task, env, (_, s0, _, _, late, _, _) = contract
+    if not hasattr(env, "mj_model"):
+        pytest.skip("not rendered by MuJoCo")
+
+    def no_gl(self, *a):
+        raise RuntimeError("no OpenGL")
+
+    monkeypatch.setattr(FrameRenderer, "_get", no_gl)
+    cam = (task.cameras or (None,))[0]
+    a, b = (env.render(s, width=200, height=150, camera=cam) for s in (s0, late))
+    assert a.shape == (150, 200, 3) and a.dtype == np.uint8
+    assert len(np.unique(a.reshape(-1, 3), axis=0)) >= 4  # background, panels, divider and coloured boxes
+    assert not np.array_equal(a, b)
+
+
 def test_task_settings_resolve(contract):
     """The task's own settings are a valid config, and its splits are what the data step reads."""
     from cogail_jax.algo.config import resolve

@@ -49,7 +49,7 @@ orientation at the handover (roll, pitch and yaw), speeds, reaction delays, paus
 
 Rendering uses ``mujoco.Renderer`` (EGL offscreen works on headless CPU machines; if ``MUJOCO_GL`` was
 not set before ``mujoco`` was imported, an EGL context is created by hand); if no OpenGL is available it
-falls back to a matplotlib top + side projection of the geoms.
+falls back to a top + side projection of the geoms drawn with numpy.
 """
 from __future__ import annotations
 

@@ -34,8 +34,8 @@ PAD_KEYS = {(0, 1): "ArrowRight", (0, -1): "ArrowLeft", (1, 1): "ArrowDown", (1,
 
 def on_host() -> None:
     """Run every computation that follows on the host's CPU. A page steps one environment at a person's pace, so each
-    step's latency is what counts: the CPU gives it in milliseconds, where an accelerator launches many small kernels per
-    step (MJX's handover on one H200: 3.5 steps/s against the 15 asked; the 2-core CPU kept 15)."""
+    step's latency is what counts, and an accelerator only adds its launches and transfers to it (on one H200's host,
+    press-to-frame median: overcooked 105 ms on the GPU, 86 ms on the host's CPU; fetchq 49 and 45 ms)."""
     import jax
 
     jax.config.update("jax_default_device", jax.devices("cpu")[0])

@@ -70,7 +70,6 @@ __all__ = [
     "tcp_pose_base", "to_base", "finger_gap", "touching", "is_grasping", "body_pos",
     "body_mat", "make_data", "template_data", "quat_to_mat", "yaw_of", "wrap_angle", "FrameRenderer",
     "rot_x", "rot_y", "rot_z", "pose_mat", "euler_xyz", "grip_angles", "rot_toward", "angles_close", "bar_normal",
-    "object_frame_rotation", "from_rot6d",
 ]
 
 N_GRIPPER_ACT = 7
@@ -535,27 +534,6 @@ def bar_normal(R_obj: jax.Array) -> jax.Array:
     """The bar's local z axis, pointing up (the side a gripper comes from to grasp it)."""
     n = R_obj[:, 2]
     return jnp.where(n[2] >= 0, n, -n)
-
-
-def from_rot6d(x: jax.Array) -> jax.Array:
-    """A rotation matrix from its 6D form (:func:`rot6d`, the first two columns; Gram-Schmidt), batched over
-    leading axes."""
-    a, b = x[..., 0:3], x[..., 3:6]
-    e1 = a / (jnp.linalg.norm(a, axis=-1, keepdims=True) + 1e-9)
-    b = b - jnp.sum(e1 * b, -1, keepdims=True) * e1
-    e2 = b / (jnp.linalg.norm(b, axis=-1, keepdims=True) + 1e-9)
-    return jnp.stack([e1, e2, jnp.cross(e1, e2)], -1)
-
-
-def object_frame_rotation(R_obj_world: jax.Array, base_mat) -> jax.Array:
-    """(..., 3, 3) the bar's frame in an agent's base frame, of its two half-turn-equivalent frames (about its normal)
-    the one whose x axis points along the base frame's +x, and with its normal up: the frame object-frame actions are
-    expressed in (``TrainConfig.action_frame``)."""
-    R = jnp.einsum("ij,...jk->...ik", jnp.asarray(base_mat).T, R_obj_world)
-    flip_z = R[..., 2, 2] < 0  # normal down: turn half about the long axis (y)
-    R = jnp.where(flip_z[..., None, None], R @ rot_y(np.pi), R)
-    flip = R[..., 0, 0] < 0
-    return jnp.where(flip[..., None, None], R @ rot_z(np.pi), R)
 
 
 def finger_gap(d: mjx.Data, g: Gripper) -> jax.Array:

@@ -301,12 +301,6 @@ class SeqManip(CollabEnv):
             mc.object_frame_features(d, h, p, R, OBJ_HALF[1]), mc.object_frame_features(d, r, p, R, OBJ_HALF[1]),
         ]).astype(jnp.float32)
 
-    def robot_action_frame(self, obs: jax.Array) -> jax.Array:
-        """(..., 3, 3) the bar's frame in the robot's base frame, read off the observation (the bar's 6D orientation):
-        object frame -> base frame of the robot's actions where a config reads them in the object's frame
-        (``TrainConfig.action_frame``; :func:`mjx_common.object_frame_rotation`)."""
-        return mc.object_frame_rotation(mc.from_rot6d(obs[..., 24:30]), self.robot.base_mat)
-
     def replay_hold(self, state: State, a_h: jax.Array) -> tuple[jax.Array, jax.Array]:
         """The patient human, at a handover only: while it holds the object out (not over the drawer) and the
         robot does not hold it, it does not open its gripper -- the recorded human opens when its own partner had

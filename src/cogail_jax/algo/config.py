@@ -90,10 +90,6 @@ class TrainConfig:
     # each agent's frame and the reverse), "both" all of them, "object" the object-centric features instead of the
     # absolute orientations (the env's ``orientation_dims``: nothing that tells how the scene is turned)
     obs_frame: str = "both"
-    # the frame the robot's actions are read in (our addition): "base" the task's own (the robot's base frame), "object"
-    # the object's frame (the env's ``robot_action_frame``: translation and rotation rates turned by the object's pose,
-    # so that one action means the same move relative to the object however it is posed; ``algo.frames``)
-    action_frame: str = "base"
     # discriminator
     disc_loss: str = "auto"  # "bce" | "lsgan" | "auto" (the task's default_config(), else lsgan)
     disc_lr: float = 3e-4
@@ -202,8 +198,6 @@ class TrainConfig:
                 f"must be divisible by num-minibatches ({self.num_minibatches})")
         if self.obs_frame not in OBS_FRAMES:
             raise ConfigError(f"obs_frame must be one of {', '.join(OBS_FRAMES)}, got {self.obs_frame!r}")
-        if self.action_frame not in ("base", "object"):
-            raise ConfigError(f"action_frame must be base or object, got {self.action_frame!r}")
         if not self.obs_std_floor > 0:
             raise ConfigError(f"obs_std_floor must be positive, got {self.obs_std_floor}")
         if self.multi_device not in ("auto", "shard_map", "per_device"):

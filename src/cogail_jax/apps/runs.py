@@ -19,7 +19,7 @@ from ..runtime import checkpoint as ckpt
 from ..data import io as data
 from ..data import manifest, sets
 from ..eval import rollouts
-from ..algo import frames, train
+from ..algo import train
 from ..algo.config import TrainConfig
 
 
@@ -66,7 +66,6 @@ def build(cfg: TrainConfig, need_heldout: bool = True, need_validation: bool | N
     env = task_env = task.make_env()  # task_env: the task's own limit (the generated demos')
     if cfg.max_episode_steps and cfg.max_episode_steps != env.max_episode_steps:
         env = task.make_env(max_episode_steps=cfg.max_episode_steps)
-    env = frames.wrap(cfg, env)  # the robot's actions in the frame cfg's policy acts in
     files: dict[str, Path] = {}
     expert = None if need_demos or run_dir is None else manifest.expert_struct(run_dir)
     train_metrics = None
@@ -74,8 +73,6 @@ def build(cfg: TrainConfig, need_heldout: bool = True, need_validation: bool | N
         files["train"] = sets.split_path(cfg, sets.TRAIN, env=task_env)
         demos = data.load_demos(files["train"], env)
         expert, train_metrics = train.expert_arrays(demos, cfg.history, expert_capacity(cfg, task_env)), demos.metrics
-        if cfg.action_frame == "object":
-            expert = frames.expert_to_policy(expert, env)
     heldout, validation = None, None
     if need_heldout:
         files["test"] = sets.split_path(cfg, sets.TEST, env=task_env)
@@ -113,7 +110,6 @@ def compile_ahead(cfg: TrainConfig) -> None:
     env = task_env = task.make_env()
     if cfg.max_episode_steps and cfg.max_episode_steps != env.max_episode_steps:
         env = task.make_env(max_episode_steps=cfg.max_episode_steps)
-    env = frames.wrap(cfg, env)
     n = sets.train_episodes(cfg)
     if n is None:
         demos = data.load_demos(sets.split_path(cfg, sets.TRAIN, env=task_env), env)

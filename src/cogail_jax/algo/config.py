@@ -259,7 +259,7 @@ class TrainConfig:
 
 # Fields removed after they measured no gain (docs/notes.md), with the value every run had unless asked otherwise: a
 # run's config.json holding that value still loads; another value stops with what to do.
-REMOVED = {"la_codes": "demo", "bc_codes": "demo", "encoder": "mlp"}
+REMOVED = {"la_codes": "demo", "bc_codes": "demo", "encoder": "mlp", "action_frame": "base"}
 
 
 # The fields that only the training update reads (its losses, optimiser steps and schedule): the programs that do not

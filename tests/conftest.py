@@ -77,14 +77,13 @@ def tiny_cfg(demo_files):
 # (xdist's loadgroup cannot split files more finely here: pytest 9 ignores the group suffix xdist 3.8 appends to
 # the test ids, so every test became a unit of its own and the MJX env modules built their fixtures again.)
 FILE_WEIGHTS = {
-    "test_coplay.py": 150, "test_robustness.py": 110, "test_sharding.py": 110, "test_cli.py": 100,
+    "test_coplay.py": 153, "test_sharding.py": 110, "test_cli.py": 108, "test_robustness.py": 101,
     "test_train.py": 100, "test_multiprocess.py": 90,  # (two processes at a time: more than its share of the CPU)
-    "test_field.py": 35, "test_presets.py": 62, "test_reliability.py": 60, "test_collect.py": 58, "test_tasks.py": 50,
-    "test_overcooked_play.py": 47, "test_discrete.py": 44, "test_protocol.py": 44, "test_handover.py": 39,
-    "test_seqmanip.py": 36, "test_example_task.py": 33, "test_portable.py": 32, "test_data_step.py": 32,
-    "test_play.py": 26, "test_env_shards.py": 25, "test_pose_slice.py": 23, "test_data.py": 19,
-    "test_segment_sums.py": 18, "test_overcooked.py": 18, "test_programs.py": 16, "test_fetchq.py": 15,
-    "test_paper.py": 9,
+    "test_collect.py": 70, "test_presets.py": 64, "test_portable.py": 54, "test_env_shards.py": 52,
+    "test_play.py": 52, "test_tasks.py": 50, "test_discrete.py": 49, "test_reliability.py": 48, "test_handover.py": 45,
+    "test_example_task.py": 45, "test_seqmanip.py": 42, "test_protocol.py": 41, "test_segment_sums.py": 40,
+    "test_pose_slice.py": 39, "test_field.py": 38, "test_overcooked_play.py": 36, "test_data_step.py": 35,
+    "test_data.py": 31, "test_overcooked.py": 20, "test_fetchq.py": 18, "test_programs.py": 13, "test_paper.py": 7,
 }
 
 

@@ -15,7 +15,10 @@ def _same(a: dict, b: dict):
             np.testing.assert_array_equal(a[k], b[k], err_msg=k)
 
 
-def test_one_compiled_program_makes_every_set(fetchq):
+def test_one_compiled_program_makes_every_set():
+    import cogail_envs
+
+    fetchq = cogail_envs.make_env("fetchq")  # its own env object: the programs kept on the shared one are counted here
     w = generate.resolve_mix(fetchq, "uniform")
     f = generate.generator_fn(fetchq)
     keys = jax.random.split(jax.random.PRNGKey(5), 11)

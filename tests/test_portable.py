@@ -14,10 +14,11 @@ import pytest
 from cogail_jax.runtime import checkpoint as ckpt
 from cogail_jax.apps import cli
 from cogail_jax.apps import eval_runner, runs, train_loop
+from test_sharding import FAST_COMPILE
 
-# as tests/test_sharding.py: the 2-device subprocesses check layouts, not speed (and share compiled programs
-# through the test run's compilation cache: the same flags give the same cache keys)
-TWO = "--xla_force_host_platform_device_count=2 --xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false"
+# as tests/test_sharding.py: the 2-device subprocesses check layouts, not speed (and share compiled programs with
+# its 2-device run of the same config through the test run's compilation cache: the same flags give the same keys)
+TWO = f"--xla_force_host_platform_device_count=2 {FAST_COMPILE}"
 
 
 def _on_two_devices(body: str, cwd) -> str:

@@ -20,7 +20,27 @@ from cogail_jax.data.varied import protocol_variations, variation_seed
 HELD_TASKS = [t for t in ("handover", "seqmanip") if get_task(t).team.held_out]
 
 
-_INIT = {}
+_ENV, _INIT, _RESET = {}, {}, {}  # per task, for the whole module: one env, its team's draws and reset_from, compiled once
+
+
+def _env(task: str):
+    if task not in _ENV:
+        _ENV[task] = cogail_envs.make_env(task)
+    return _ENV[task]
+
+
+def _init(task: str):
+    """The team's draws, jitted: ``f(keys (n, 2), variation (n,)) -> (team states, strategies)``."""
+    if task not in _INIT:
+        env, team = _env(task), get_task(task).team
+        _INIT[task] = jax.jit(jax.vmap(lambda k, v: team.init(env, k, env.uniform_mix(), v)))
+    return _INIT[task]
+
+
+def _reset(task: str):
+    if task not in _RESET:
+        _RESET[task] = jax.jit(_env(task).reset_from)
+    return _RESET[task]
 
 
 def _axes(task: str, ts) -> dict:
@@ -43,11 +63,8 @@ def _draws(task: str, variation: int, n: int = 1000):
     """The teams' draws of ``n`` episodes (no physics; one compiled program per task, the variation traced): per
     axis, whether each episode's value lies beyond the training range (any of its places, for the place axes) and
     how far (m or rad) at most."""
-    if task not in _INIT:
-        env, team = cogail_envs.make_env(task), get_task(task).team
-        _INIT[task] = jax.jit(jax.vmap(lambda k, v: team.init(env, k, env.uniform_mix(), v)))
     keys = jax.random.split(jax.random.PRNGKey(variation), n)
-    ts, _ = _INIT[task](keys, jnp.full((n,), variation, jnp.int32))
+    ts, _ = _init(task)(keys, jnp.full((n,), variation, jnp.int32))
     out, beyond = {}, {}
     for axis, parts in _axes(task, ts).items():
         off = np.max([np.maximum(lo - v, v - hi) for v, (lo, hi) in parts], 0)
@@ -65,7 +82,7 @@ def test_training_draws_stay_in_range_and_each_slice_outside_its_own(task):
     slices = get_task(task).team.held_out_slices
     assert set(slices) >= {"roll", "pitch", "yaw", "x", "y", "z"}
     for v in [0, *range(1, len(VARIATIONS) + 1), 6 | FOLLOWING_PARTNER, PROMPT_ROBOT]:
-        out, _ = _draws(task, v, 300)
+        out, _ = _draws(task, v)  # (as many episodes as below: the same compiled program)
         assert not any(o.any() for o in out.values()), (task, v)
     for axis in slices:
         out, beyond = _draws(task, pose_slice(axis))
@@ -119,10 +136,10 @@ def test_the_validation_slice_is_as_large_as_the_validation_split(monkeypatch):
 def test_object_frame_features(task):
     """The features are the env's last 34 dims; ``obs_frame="world"`` normalises them (only them) to 0, "object" the
     absolute orientations (only them), "both" none."""
-    env = cogail_envs.make_env(task)
+    env = _env(task)
     dims = np.asarray(env.object_frame_dims)
     assert len(dims) == 34 and dims[-1] == env.observation_size - 1
-    s = jax.jit(env.reset_from)(env.sample_init(jax.random.PRNGKey(3)))
+    s = _reset(task)(env.sample_init(jax.random.PRNGKey(3)))
     obs = np.asarray(s.obs)[None].repeat(4, 0)
     expert = {"obs": obs + np.arange(4)[:, None], "demo": np.array([0, 0, 1, 1])}
     x = jnp.asarray(expert["obs"])
@@ -152,9 +169,9 @@ def test_prompt_robot_changes_the_robot_only(task):
 
     from cogail_jax.data.generate import training_flags
 
-    env, team = cogail_envs.make_env(task), get_task(task).team
-    init = jax.jit(jax.vmap(lambda k, v: team.init(env, k, env.uniform_mix(), v), in_axes=(0, None)))
-    keys = jax.random.split(jax.random.PRNGKey(0), 200)
+    env = _env(task)
+    keys = jax.random.split(jax.random.PRNGKey(0), 1000)  # (the draws' program of the test above: its batch size)
+    init = lambda keys, v: _init(task)(keys, jnp.full((len(keys),), v, jnp.int32))  # noqa: E731
     for v in (0, 5):  # none, and a varied human (noise)
         plain, s0 = init(keys, jnp.int32(v))
         fast, s1 = init(keys, jnp.int32(v | PROMPT_ROBOT))
@@ -186,7 +203,7 @@ def test_training_env_changes_the_robot_start_only(task, tmp_path, monkeypatch):
     gripper there (joint and command); only the training split is made in it, under its own dataset version."""
     from cogail_jax.data import generate, io
 
-    env = cogail_envs.make_env(task)
+    env = _env(task)
     tenv = generate.training_env(env)
     opts = get_task(task).train_env
     keys = jax.random.split(jax.random.PRNGKey(0), 4000)
@@ -199,7 +216,7 @@ def test_training_env_changes_the_robot_start_only(task, tmp_path, monkeypatch):
     assert tenv.version != env.version and generate.training_env(tenv).version == tenv.version
     x = plain[0].copy()
     x[8], x[9] = -0.07, 0.4
-    d = jax.jit(env.reset_from)(jnp.asarray(x)).pipeline_state
+    d = _reset(task)(jnp.asarray(x)).pipeline_state
     r = env.robot
     np.testing.assert_allclose(np.asarray(d.qpos)[[r.qpos[2], r.qpos[5]]], [-0.07, 0.4], atol=1e-6)
     np.testing.assert_allclose(np.asarray(d.ctrl)[[r.act + 2, r.act + 5]], [-0.07, 0.4], atol=1e-6)

@@ -986,10 +986,11 @@ def field_seat_rows(results: dict) -> list[str]:
     return rows
 
 
-def crossplay(results: dict, out: Path) -> dict:
+def crossplay(results: dict, out: Path, tasks=None) -> dict:
     """Each field task's cross-play matrix (``field.crossplay``): every row's robot with every other's, at the
     checkpoint the field's protocol selected, from the runs on disk; merged into ``<out>/crossplay.json`` and
-    written as ``<out>/crossplay.md``. Returns the matrices by task."""
+    written as ``<out>/crossplay.md``. ``tasks``: only these (default: every field task). Returns the matrices by
+    task."""
     from cogail_jax.algo.config import TrainConfig
     from cogail_jax.apps.runs import Policies, build
     from cogail_jax.eval import field
@@ -999,7 +1000,8 @@ def crossplay(results: dict, out: Path) -> dict:
     by_task: dict = {}
     for key, r in results.items():
         parts = key.split("/")
-        if r.get("field") and len(parts) == 3 and (Path(r.get("run", "")) / "config.json").is_file():
+        if (r.get("field") and len(parts) == 3 and (tasks is None or parts[0] in tasks)
+                and (Path(r.get("run", "")) / "config.json").is_file()):
             by_task.setdefault(parts[0], {})[parts[1]] = r
     for task, rows in by_task.items():
         if len(rows) < 2:
@@ -1178,10 +1180,13 @@ def main(argv=None) -> int:
     todo = shard_jobs(todo, a.shard)
     gpus = gpu_slots(a.gpus)
     slots = job_slots(gpus, a.jobs_per_gpu) if gpus != ["-"] else gpus
-    failed = []
+    failed, crossed = [], set()  # crossed: the tasks whose cross-play was made as their last job ended
     if len(slots) > 1 and len(todo) > 1:  # one process per job, K jobs per GPU at a time, each task's data first
         data = {job[0]: job for job in data_jobs(todo)}
         made: dict[str, int | None] = {}  # task -> its data job's exit code
+        left = {t: sum(job[0] == t for job in todo) for t in data}  # each task's jobs not yet ended
+        t0 = time.perf_counter()
+        stamp = lambda: f"[{time.perf_counter() - t0:6.0f} s]"  # noqa: E731  (from the grid's start)
 
         def where(job):  # the job's folder and log
             name = job_name(job) + (f"-{a.label}" if a.label and job[1] != DATA else "")
@@ -1197,7 +1202,7 @@ def main(argv=None) -> int:
         def launch(job, slot):
             folder, log = where(job)
             log.parent.mkdir(parents=True, exist_ok=True)
-            print(f"{' '.join(job[:3]):30} started on GPU {slot_device(slot)} (log: {log})", flush=True)
+            print(f"{stamp()} {' '.join(job[:3]):30} started on GPU {slot_device(slot)} (log: {log})", flush=True)
             argv = data_argv(a, job) if job[1] == DATA else job_argv(a, job, folder)
             return subprocess.Popen(argv, stdout=log.open("w"), stderr=subprocess.STDOUT,
                                     env={**os.environ, "CUDA_VISIBLE_DEVICES": slot_device(slot)})
@@ -1206,9 +1211,10 @@ def main(argv=None) -> int:
             folder, log = where(job)
             if job[1] == DATA:
                 made[job[0]] = code
-                print(f"{job[0]} datasets " + ("ready" if code == 0 else f"FAILED (exit {code}): see {log}"),
+                print(f"{stamp()} {job[0]} datasets " + ("ready" if code == 0 else f"FAILED (exit {code}): see {log}"),
                       flush=True)
                 continue
+            left[job[0]] -= 1
             if code is None:
                 failed.append(job)
                 print(f"{' '.join(job):30} not run: its task's datasets failed", flush=True)
@@ -1219,8 +1225,12 @@ def main(argv=None) -> int:
                 print(f"{' '.join(job):30} FAILED (exit {code}): see {log}", flush=True)
                 continue
             results.update(json.loads(got.read_text()))
-            print(f"{' '.join(job):30} done", flush=True)
+            print(f"{stamp()} {' '.join(job):30} done", flush=True)
             tables(results, *table_axes(results, tasks, methods), out, readme)
+            if not left[job[0]] and crossplay(results, out, tasks=[job[0]]):  # a cut-off grid keeps it
+                crossed.add(job[0])
+                print(f"{stamp()} {job[0]} cross-play done", flush=True)
+        print(f"{stamp()} every job ended", flush=True)
     else:
         for t, m, mix in todo:
             key = f"{t}/{m}/{mix}" + (f"/{a.label}" if a.label else "")
@@ -1231,7 +1241,9 @@ def main(argv=None) -> int:
                   f"(paper protocol {pp[1]})", flush=True)
             tables(results, *table_axes(results, tasks, methods), out, readme)
     if todo and any(r.get("field") for r in results.values()):  # the field's robots with one another
-        crossplay(results, out)
+        rest = None if len(slots) <= 1 or len(todo) <= 1 else sorted({t for t, _, _ in todo} - crossed)
+        if rest is None or rest:
+            crossplay(results, out, tasks=rest)
     if (out / "table1_replay.md").exists():
         print((out / "table1_replay.md").read_text())
         print((out / "table2_interpolation.md").read_text())

@@ -677,3 +677,39 @@ def test_training_and_evaluation_never_import_what_the_grid_leaves_out():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() == "[]" and {"play", "collect", "controls", "video"} <= set(left_out)
+
+
+def test_a_task_s_cross_play_is_made_as_its_last_job_ends(tmp_path, monkeypatch, capsys):
+    """Side by side, each task's cross-play is made once that task's last job has ended, not at the grid's end
+    (so a grid cut off before its end keeps the cross-play of the tasks it finished), and each line of the grid's
+    log carries the seconds since its start."""
+    import sys
+
+    def fake_data_argv(a, job):
+        return [sys.executable, "-c", "pass"]
+
+    def fake_argv(a, job, out):
+        t, m, mix = job
+        res = json.dumps({f"{t}/{m}/{mix}": _res(0.55, 0.6)})
+        return [sys.executable, "-c", f"import pathlib; p = pathlib.Path({str(out)!r}); p.mkdir(parents=True); "
+                                      f"(p / 'paper.json').write_text({res!r})"]
+
+    calls = []
+
+    def fake_crossplay(results, out, tasks=None):
+        calls.append((tasks, sorted(results)))
+        return {t: {} for t in tasks or []}
+
+    monkeypatch.setattr(paper, "job_argv", fake_argv)
+    monkeypatch.setattr(paper, "data_argv", fake_data_argv)
+    monkeypatch.setattr(paper, "crossplay", fake_crossplay)
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "0")
+    assert paper.main(["--tasks", "fetchq,handover", "--methods", "cogail,diayn", "--out", str(tmp_path / "g"),
+                       "--gpus", "1", "--jobs-per-gpu", "2"]) == 0
+    assert sorted(c[0] for c in calls) == [["fetchq"], ["handover"]]  # once each, no final call for all
+    for tasks, rows in calls:  # each as soon as its own two rows are in
+        assert {f"{tasks[0]}/cogail/uniform", f"{tasks[0]}/diayn/uniform"} <= set(rows)
+    assert len(calls[0][1]) < 4  # the first before the grid's last job ended
+    log = capsys.readouterr().out
+    assert "fetchq cross-play done" in log and all(
+        line.startswith("[") for line in log.splitlines() if line.endswith((" done", " ready")))

@@ -362,8 +362,8 @@ def data_jobs(todo: list) -> list[tuple]:
 def data_argv(a, job) -> list[str]:
     """The command of a data job: this script with ``--data-only`` on its task, mixtures and methods."""
     t, _, mixes, methods = job
-    argv = [sys.executable, str(Path(__file__).resolve()), "--data-only", "--tasks", t, "--methods", methods,
-            "--mixes", mixes, "--seeds", a.seeds]
+    argv = [sys.executable, str(Path(__file__).resolve()), "--data-only", "--tasks", t, "--no-variants", "--methods",
+            methods, "--mixes", mixes, "--seeds", a.seeds]
     for item in a.set:
         argv += ["--set", item]
     for flag, on in (("--nondeterministic", a.nondeterministic), ("--no-compile-cache", a.no_compile_cache)):
@@ -387,8 +387,8 @@ def job_argv(a, job, out: Path) -> list[str]:
     """The command of one job of this sweep (its own process, one GPU): this script on that one task x method x
     mixture, with the sweep's other options, into ``out``."""
     t, m, mix = job
-    argv = [sys.executable, str(Path(__file__).resolve()), "--tasks", t, "--methods", m, "--mixes", mix,
-            "--out", str(out), "--gpus", "1", "--seeds", a.seeds, "--eval-every", str(a.eval_every)]
+    argv = [sys.executable, str(Path(__file__).resolve()), "--tasks", t, "--no-variants", "--methods", m, "--mixes",
+            mix, "--out", str(out), "--gpus", "1", "--seeds", a.seeds, "--eval-every", str(a.eval_every)]
     for item in a.set:
         argv += ["--set", item]
     for flag, on in (("--force", a.force), ("--nondeterministic", a.nondeterministic),
@@ -1064,6 +1064,9 @@ def main(argv=None) -> int:
                                        f"{BEGIN} and {END}")
     p.add_argument("--tasks", default="fetchq",
                    help="comma-separated; a task with variants (overcooked) stands for all of them (its five kitchens)")
+    p.add_argument("--no-variants", action="store_true",
+                   help="each task in --tasks alone, without its variants (`--tasks overcooked`: the Cramped Room "
+                        "only); a grid's job processes run with it")
     p.add_argument("--methods", default="",
                    help="comma-separated (default: the paper's six; on a task learned from people, also the field's "
                         "ppo_bc and ppo_sp)")
@@ -1121,7 +1124,7 @@ def main(argv=None) -> int:
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     readme = Path(a.readme) if a.readme else None
-    tasks = expand_tasks(a.tasks.split(","))
+    tasks = a.tasks.split(",") if a.no_variants else expand_tasks(a.tasks.split(","))
     methods = a.methods.split(",") if a.methods else default_methods(tasks)
     seeds = [int(s) for s in a.seeds.split(",")]
     mixes_of = lambda t: a.mixes.split(",") if t == "fetchq" else ["uniform"]  # noqa: E731

@@ -713,3 +713,21 @@ def test_a_task_s_cross_play_is_made_as_its_last_job_ends(tmp_path, monkeypatch,
     log = capsys.readouterr().out
     assert "fetchq cross-play done" in log and all(
         line.startswith("[") for line in log.splitlines() if line.endswith((" done", " ready")))
+
+
+def test_a_grid_job_trains_its_own_kitchen_only(tmp_path, monkeypatch):
+    """`--tasks overcooked` stands for the five kitchens in a grid, but each of its job processes (and data jobs)
+    gets one kitchen with --no-variants: the Cramped Room's job trains the Cramped Room alone, not all five again."""
+    import argparse
+
+    seen = []
+    monkeypatch.setattr(paper, "make_data", lambda tasks, *rest: seen.append(list(tasks)))
+    assert paper.main(["--tasks", "overcooked", "--methods", "cogail", "--out", str(tmp_path), "--data-only"]) == 0
+    assert seen[-1][0] == "overcooked" and len(seen[-1]) == 5
+    a = argparse.Namespace(seeds="300", eval_every=1, set=[], force=False, nondeterministic=False,
+                           no_compile_cache=False, label=None, ckpt_batch=None)
+    job = paper.job_argv(a, ("overcooked", "cogail", "uniform"), tmp_path)[2:]  # after python and the script
+    data = paper.data_argv(a, ("overcooked", paper.DATA, "uniform", "cogail"))[2:]
+    for argv in (job + ["--data-only"], data + ["--out", str(tmp_path)]):  # parsed as the job would, data only
+        assert paper.main(argv) == 0
+        assert seen[-1] == ["overcooked"]

@@ -32,6 +32,12 @@ def _data_dir(path):
             os.environ["COGAIL_DATA"] = old
 
 
+# Episodes per MJX generator call (``generate.generator_batch``; 8 on a CPU): each call rolls out every lane for the
+# whole time limit, so the lanes beyond the episodes tried are pure cost. seqmanip tries 5 episodes in each of its
+# sets below (one call at this width, one program for both of its tests); handover tries 3.
+MJX_BATCH = {"handover": 3, "seqmanip": 5}
+
+
 @pytest.fixture(scope="module")
 def mjx_env():
     """``get(task)``: one env object per MJX task for this module: the task's generator program is kept on it
@@ -195,7 +201,7 @@ def test_figure(tmp_path):
 def test_mjx_sets_validate(task, tmp_path, mjx_env):
     """Tiny MJX sets: 2 varied episodes, validated by open-loop re-simulation, with the human's pauses in them."""
     env = mjx_env(task)
-    eps, stats = rb.generate_varied(env, "pauses", 2, max_attempts=6)
+    eps, stats = rb.generate_varied(env, "pauses", 2, max_attempts=MJX_BATCH[task], batch=MJX_BATCH[task])
     assert stats["kept"] == 2 and stats["validated"] >= 2
     path = rb.write_robust_file(tmp_path / f"{task}.hdf5", env, eps, "pauses", "uniform", 102, "test", 2, stats)
     d = load_demos(path, env, require_init=True)
@@ -244,8 +250,9 @@ def test_following_partner_guesses_then_recovers(tmp_path, mjx_env):
     open-loop replay, which keeps an episode only where the replay succeeds with the strategy drawn;
     ``validate_episodes``' separate replay program is checked against it on fetchq above)."""
     env = mjx_env("seqmanip")  # the generator program test_mjx_sets_validate[seqmanip] compiled
-    plan, _ = rb.generate_varied(env, "change_of_mind", 4, split="train", max_attempts=5)
-    follow, stats = rb.generate_varied(env, "change_of_mind", 4, split="train", max_attempts=5,
+    B = MJX_BATCH["seqmanip"]
+    plan, _ = rb.generate_varied(env, "change_of_mind", 4, split="train", max_attempts=B, batch=B)
+    follow, stats = rb.generate_varied(env, "change_of_mind", 4, split="train", max_attempts=B, batch=B,
                                        following_partner=True)
     assert stats["kept"] == 4 and stats["validated"] >= 4 and np.array_equal(plan.gen_index, follow.gen_index)
     assert np.array_equal(plan.strategy, follow.strategy) and np.array_equal(follow.executed, follow.strategy)

@@ -989,8 +989,8 @@ def field_seat_rows(results: dict) -> list[str]:
 def crossplay(results: dict, out: Path, tasks=None) -> dict:
     """Each field task's cross-play matrix (``field.crossplay``): every row's robot with every other's, at the
     checkpoint the field's protocol selected, from the runs on disk; merged into ``<out>/crossplay.json`` and
-    written as ``<out>/crossplay.md``. ``tasks``: only these (default: every field task). Returns the matrices by
-    task."""
+    written as ``<out>/crossplay.md``. ``tasks``: only these (default: every field task). Returns the matrices it
+    made, by task."""
     from cogail_jax.algo.config import TrainConfig
     from cogail_jax.apps.runs import Policies, build
     from cogail_jax.eval import field
@@ -998,6 +998,7 @@ def crossplay(results: dict, out: Path, tasks=None) -> dict:
     path = out / "crossplay.json"
     done = json.loads(path.read_text()) if path.is_file() else {}
     by_task: dict = {}
+    made: dict = {}
     for key, r in results.items():
         parts = key.split("/")
         if (r.get("field") and len(parts) == 3 and (tasks is None or parts[0] in tasks)
@@ -1013,9 +1014,9 @@ def crossplay(results: dict, out: Path, tasks=None) -> dict:
                       need_demos=False)
             robots[m] = (s.cfg, s.nets, Policies(run, s).load(int(rows[m]["field"]["selected"]["checkpoint"])))
             env = s.env
-        done[task] = field.crossplay(env, robots, field.sizes()["episodes"])
+        done[task] = made[task] = field.crossplay(env, robots, field.sizes()["episodes"])
         print(f"{task}: cross-play of {len(robots)} robots", flush=True)
-    if done:
+    if made:
         path.write_text(json.dumps(done, indent=2))
         text = ["# Cross-play of the field's robots (reward over 400 steps, mean +- s.e., both seats pooled)", "",
                 "Row: the robot in the human agent's slot; column: the robot in the robot's slot; the diagonal is "
@@ -1023,7 +1024,7 @@ def crossplay(results: dict, out: Path, tasks=None) -> dict:
         for task, matrix in done.items():
             text += [f"## {task}", "", *field.crossplay_markdown(matrix), ""]
         (out / "crossplay.md").write_text("\n".join(text))
-    return done
+    return made
 
 
 FIELD_NOTE = ("Reward over 400 steps (20 per soup served), mean +- s.e. over every episode (3 seeds x 100 episodes x "
@@ -1220,12 +1221,12 @@ def main(argv=None) -> int:
             left[job[0]] -= 1
             if code is None:
                 failed.append(job)
-                print(f"{' '.join(job):30} not run: its task's datasets failed", flush=True)
+                print(f"{stamp()} {' '.join(job):30} not run: its task's datasets failed", flush=True)
                 continue
             got = folder / "paper.json"
             if code or not got.is_file():
                 failed.append(job)
-                print(f"{' '.join(job):30} FAILED (exit {code}): see {log}", flush=True)
+                print(f"{stamp()} {' '.join(job):30} FAILED (exit {code}): see {log}", flush=True)
                 continue
             results.update(json.loads(got.read_text()))
             print(f"{stamp()} {' '.join(job):30} done", flush=True)

@@ -25,8 +25,10 @@ GPU at a time (``--jobs-per-gpu K``: K; the jobs share the GPU's memory, and the
 time) and the rest queued, its results in ``<out>/jobs/<task>-<method>-<mix>/`` and merged into
 ``<out>/paper.json`` as it ends. Each task's datasets are made first, by one process per task
 (``--data-only``; log ``<out>/jobs/<task>-data.log``), so that jobs side by side never write the same file; a task's
-jobs start when its datasets are ready. ``--shard i/n`` runs only every n-th job from the i-th (0-based), so that n hosts
-share the grid; ``--merge`` then joins their ``paper.json``.
+jobs start when its datasets are ready. On a task learned from people, the field's cross-play of its robots is a job of
+its own too (``--crossplay`` on the task's rows, log ``<out>/jobs/<task>-cross-play.log``), started once the task's last
+job has ended, beside the other tasks' jobs. ``--shard i/n`` runs only every n-th job from the i-th (0-based), so that
+n hosts share the grid; ``--merge`` then joins their ``paper.json``.
 
 Each run's entry records the commit it was trained at (and whether the code had uncommitted changes) and the
 ``--set`` overrides it was resolved with. A row is *stale* when it was not trained from this checkout's code (another
@@ -381,6 +383,15 @@ def make_data(tasks, methods, mixes_of, seeds, extra) -> None:
             for m in methods:
                 make_datasets(resolve_config(t, m, mix, seeds, extra))
             validation_robustness_sets(t, mix)
+
+
+CROSS = "cross-play"  # a cross-play job: (task, CROSS), ready once every job of its task has ended
+
+
+def crossplay_argv(a, job, out: Path) -> list[str]:
+    """The command of a cross-play job: this script with ``--crossplay`` on ``out`` (a folder holding the task's rows
+    as its paper.json), which writes the task's matrix into ``out``'s crossplay.json."""
+    return [sys.executable, str(Path(__file__).resolve()), "--crossplay", "--out", str(out)]
 
 
 def job_argv(a, job, out: Path) -> list[str]:
@@ -986,6 +997,21 @@ def field_seat_rows(results: dict) -> list[str]:
     return rows
 
 
+def write_crossplay(out: Path, matrices: dict) -> None:
+    """Merge ``matrices`` (task -> cross-play matrix) into ``<out>/crossplay.json`` and rewrite ``crossplay.md``."""
+    path = out / "crossplay.json"
+    done = {**(json.loads(path.read_text()) if path.is_file() else {}), **matrices}
+    path.write_text(json.dumps(done, indent=2))
+    from cogail_jax.eval import field
+
+    text = ["# Cross-play of the field's robots (reward over 400 steps, mean +- s.e., both seats pooled)", "",
+            "Row: the robot in the human agent's slot; column: the robot in the robot's slot; the diagonal is "
+            "self-play. Each at the checkpoint the field's protocol selected.", ""]
+    for task, matrix in done.items():
+        text += [f"## {task}", "", *field.crossplay_markdown(matrix), ""]
+    (out / "crossplay.md").write_text("\n".join(text))
+
+
 def crossplay(results: dict, out: Path, tasks=None) -> dict:
     """Each field task's cross-play matrix (``field.crossplay``): every row's robot with every other's, at the
     checkpoint the field's protocol selected, from the runs on disk; merged into ``<out>/crossplay.json`` and
@@ -995,8 +1021,6 @@ def crossplay(results: dict, out: Path, tasks=None) -> dict:
     from cogail_jax.apps.runs import Policies, build
     from cogail_jax.eval import field
 
-    path = out / "crossplay.json"
-    done = json.loads(path.read_text()) if path.is_file() else {}
     by_task: dict = {}
     made: dict = {}
     for key, r in results.items():
@@ -1014,16 +1038,10 @@ def crossplay(results: dict, out: Path, tasks=None) -> dict:
                       need_demos=False)
             robots[m] = (s.cfg, s.nets, Policies(run, s).load(int(rows[m]["field"]["selected"]["checkpoint"])))
             env = s.env
-        done[task] = made[task] = field.crossplay(env, robots, field.sizes()["episodes"])
+        made[task] = field.crossplay(env, robots, field.sizes()["episodes"])
         print(f"{task}: cross-play of {len(robots)} robots", flush=True)
     if made:
-        path.write_text(json.dumps(done, indent=2))
-        text = ["# Cross-play of the field's robots (reward over 400 steps, mean +- s.e., both seats pooled)", "",
-                "Row: the robot in the human agent's slot; column: the robot in the robot's slot; the diagonal is "
-                "self-play. Each at the checkpoint the field's protocol selected.", ""]
-        for task, matrix in done.items():
-            text += [f"## {task}", "", *field.crossplay_markdown(matrix), ""]
-        (out / "crossplay.md").write_text("\n".join(text))
+        write_crossplay(out, made)
     return made
 
 
@@ -1111,7 +1129,8 @@ def main(argv=None) -> int:
                         "their results with --merge")
     p.add_argument("--crossplay", action="store_true",
                    help="train nothing: the cross-play matrix of every field task's robots in <out>/paper.json (their "
-                        "runs on disk), into <out>/crossplay.{json,md} (a grid run makes it after its jobs)")
+                        "runs on disk), into <out>/crossplay.{json,md} (a grid side by side makes each task's as a job of its "
+                        "own once the task's jobs have ended)")
     p.add_argument("--nondeterministic", action="store_true", help="allow nondeterministic GPU kernels")
     p.add_argument("--no-compile-cache", action="store_true",
                    help="do not keep compiled programs between runs (as `cogail train --no-compile-cache`)")
@@ -1184,11 +1203,21 @@ def main(argv=None) -> int:
     todo = shard_jobs(todo, a.shard)
     gpus = gpu_slots(a.gpus)
     slots = job_slots(gpus, a.jobs_per_gpu) if gpus != ["-"] else gpus
-    failed, crossed = [], set()  # crossed: the tasks whose cross-play was made as their last job ended
+    failed = []
     if len(slots) > 1 and len(todo) > 1:  # one process per job, K jobs per GPU at a time, each task's data first
         data = {job[0]: job for job in data_jobs(todo)}
         made: dict[str, int | None] = {}  # task -> its data job's exit code
         left = {t: sum(job[0] == t for job in todo) for t in data}  # each task's jobs not yet ended
+        # each field task's cross-play is a job of its own, queued after the task's last job: it starts once they have
+        # all ended and a slot is free, while the other tasks' jobs keep the remaining slots busy
+        queue = list(data.values())
+        for i, job in enumerate(todo):
+            queue.append(job)
+            if not any(j[0] == job[0] for j in todo[i + 1:]):
+                queue.append((job[0], CROSS))
+
+        def field_rows(task):  # the task's rows scored by the field's protocol (tasks learned from people)
+            return [r for k, r in results.items() if k.split("/")[0] == task and r.get("field")]
         t0 = time.perf_counter()
         stamp = lambda: f"[{time.perf_counter() - t0:6.0f} s]"  # noqa: E731  (from the grid's start)
 
@@ -1201,18 +1230,35 @@ def main(argv=None) -> int:
                 return True
             if job[0] not in made:
                 return False
+            if job[1] == CROSS:  # never where the task's data failed or none of its rows is a field row
+                return None if made[job[0]] != 0 or (not left[job[0]] and len(field_rows(job[0])) < 2) else (
+                    not left[job[0]])
             return True if made[job[0]] == 0 else None
 
         def launch(job, slot):
             folder, log = where(job)
             log.parent.mkdir(parents=True, exist_ok=True)
             print(f"{stamp()} {' '.join(job[:3]):30} started on GPU {slot_device(slot)} (log: {log})", flush=True)
-            argv = data_argv(a, job) if job[1] == DATA else job_argv(a, job, folder)
+            if job[1] == CROSS:  # the task's rows as the job folder's paper.json: the cross-play reads them
+                folder.mkdir(parents=True, exist_ok=True)
+                rows = {k: r for k, r in results.items() if k.split("/")[0] == job[0]}
+                (folder / "paper.json").write_text(json.dumps(rows, indent=1))
+                (folder / "crossplay.json").unlink(missing_ok=True)
+            argv = (data_argv(a, job) if job[1] == DATA else crossplay_argv(a, job, folder) if job[1] == CROSS
+                    else job_argv(a, job, folder))
             return subprocess.Popen(argv, stdout=log.open("w"), stderr=subprocess.STDOUT,
                                     env={**os.environ, "CUDA_VISIBLE_DEVICES": slot_device(slot)})
 
-        for job, code in run_jobs(list(data.values()) + todo, slots, launch, ready=ready):
+        for job, code in run_jobs(queue, slots, launch, ready=ready):
             folder, log = where(job)
+            if job[1] == CROSS:
+                got = folder / "crossplay.json"
+                if code == 0 and got.is_file():
+                    write_crossplay(out, json.loads(got.read_text()))
+                    print(f"{stamp()} {job[0]} cross-play done", flush=True)
+                elif code is not None:
+                    print(f"{stamp()} {job[0]} cross-play FAILED (exit {code}): see {log}", flush=True)
+                continue
             if job[1] == DATA:
                 made[job[0]] = code
                 print(f"{stamp()} {job[0]} datasets " + ("ready" if code == 0 else f"FAILED (exit {code}): see {log}"),
@@ -1231,9 +1277,6 @@ def main(argv=None) -> int:
             results.update(json.loads(got.read_text()))
             print(f"{stamp()} {' '.join(job):30} done", flush=True)
             tables(results, *table_axes(results, tasks, methods), out, readme)
-            if not left[job[0]] and crossplay(results, out, tasks=[job[0]]):  # a cut-off grid keeps it
-                crossed.add(job[0])
-                print(f"{stamp()} {job[0]} cross-play done", flush=True)
         print(f"{stamp()} every job ended", flush=True)
     else:
         for t, m, mix in todo:
@@ -1244,10 +1287,8 @@ def main(argv=None) -> int:
             print(f"{t:9} {m:12} {mix:8} replay {sel[0]} (paper protocol {sel[1]})  interp {pp[0]} "
                   f"(paper protocol {pp[1]})", flush=True)
             tables(results, *table_axes(results, tasks, methods), out, readme)
-    if todo and any(r.get("field") for r in results.values()):  # the field's robots with one another
-        rest = None if len(slots) <= 1 or len(todo) <= 1 else sorted({t for t, _, _ in todo} - crossed)
-        if rest is None or rest:
-            crossplay(results, out, tasks=rest)
+    if todo and (len(slots) <= 1 or len(todo) <= 1) and any(r.get("field") for r in results.values()):
+        crossplay(results, out)  # one job at a time: the field's robots with one another, here (side by side: jobs)
     if (out / "table1_replay.md").exists():
         print((out / "table1_replay.md").read_text())
         print((out / "table2_interpolation.md").read_text())

@@ -679,10 +679,11 @@ def test_training_and_evaluation_never_import_what_the_grid_leaves_out():
     assert out.stdout.strip() == "[]" and {"play", "collect", "controls", "video"} <= set(left_out)
 
 
-def test_a_task_s_cross_play_is_made_as_its_last_job_ends(tmp_path, monkeypatch, capsys):
-    """Side by side, each task's cross-play is made once that task's last job has ended, not at the grid's end
-    (so a grid cut off before its end keeps the cross-play of the tasks it finished), and each line of the grid's
-    log carries the seconds since its start."""
+def test_a_task_s_cross_play_is_a_job_started_as_its_last_job_ends(tmp_path, monkeypatch, capsys):
+    """Side by side, each field task's cross-play is a process of its own, started once that task's last job has ended
+    (so a grid cut off before its end keeps the cross-play of the tasks it finished) while the other tasks' jobs keep
+    running; it reads only its task's rows, and its matrix is merged into the grid's crossplay.json. A task without
+    field rows gets none. Each line of the grid's log carries the seconds since its start."""
     import sys
 
     def fake_data_argv(a, job):
@@ -690,29 +691,36 @@ def test_a_task_s_cross_play_is_made_as_its_last_job_ends(tmp_path, monkeypatch,
 
     def fake_argv(a, job, out):
         t, m, mix = job
-        res = json.dumps({f"{t}/{m}/{mix}": _res(0.55, 0.6)})
-        return [sys.executable, "-c", f"import pathlib; p = pathlib.Path({str(out)!r}); p.mkdir(parents=True); "
+        row = {**_res(0.55, 0.6), **({"field": {"selected": {"checkpoint": 1}}} if t == "handover" else {})}
+        res = json.dumps({f"{t}/{m}/{mix}": row})
+        slow = "import time; time.sleep(1.5); " if (t, m) == ("fetchq", "diayn") else ""
+        return [sys.executable, "-c", f"{slow}import pathlib; p = pathlib.Path({str(out)!r}); p.mkdir(parents=True); "
                                       f"(p / 'paper.json').write_text({res!r})"]
 
-    calls = []
-
-    def fake_crossplay(results, out, tasks=None):
-        calls.append((tasks, sorted(results)))
-        return {t: {} for t in tasks or []}
+    def fake_cross_argv(a, job, out):  # a matrix of the rows it was given, and the grid's own crossplay.json unseen
+        code = ("import json, pathlib; p = pathlib.Path({o!r}); rows = json.loads((p / 'paper.json').read_text()); "
+                "m = sorted(k.split('/')[1] for k in rows); cell = {{'reward': {{'mean': 1.0, 'se': 0.0}}}}; "
+                "(p / 'crossplay.json').write_text(json.dumps({{{t!r}: {{a: {{b: cell for b in m}} for a in m}}}}))")
+        return [sys.executable, "-c", code.format(o=str(out), t=job[0])]
 
     monkeypatch.setattr(paper, "job_argv", fake_argv)
     monkeypatch.setattr(paper, "data_argv", fake_data_argv)
-    monkeypatch.setattr(paper, "crossplay", fake_crossplay)
+    monkeypatch.setattr(paper, "crossplay_argv", fake_cross_argv)
+    monkeypatch.setattr(paper, "crossplay", lambda *args, **kw: pytest.fail("the grid cross-played in its own process"))
+    monkeypatch.setattr(paper, "tables", lambda *args, **kw: None)  # the field rows here are stubs
     monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "0")
-    assert paper.main(["--tasks", "fetchq,handover", "--methods", "cogail,diayn", "--out", str(tmp_path / "g"),
+    out = tmp_path / "g"
+    assert paper.main(["--tasks", "handover,fetchq", "--methods", "cogail,diayn", "--out", str(out),
                        "--gpus", "1", "--jobs-per-gpu", "2"]) == 0
-    assert sorted(c[0] for c in calls) == [["fetchq"], ["handover"]]  # once each, no final call for all
-    for tasks, rows in calls:  # each as soon as its own two rows are in
-        assert {f"{tasks[0]}/cogail/uniform", f"{tasks[0]}/diayn/uniform"} <= set(rows)
-    assert len(calls[0][1]) < 4  # the first before the grid's last job ended
-    log = capsys.readouterr().out
-    assert "fetchq cross-play done" in log and all(
-        line.startswith("[") for line in log.splitlines() if line.endswith((" done", " ready")))
+    log = [line for line in capsys.readouterr().out.splitlines() if line.startswith("[")]
+    assert json.loads((out / "crossplay.json").read_text()) == {
+        "handover": {a: {b: {"reward": {"mean": 1.0, "se": 0.0}} for b in ("cogail", "diayn")} for a in
+                     ("cogail", "diayn")}}  # handover's rows only; fetchq has no field rows, so no cross-play
+    assert "| cogail | 1.0 +- 0.0 | 1.0 +- 0.0 |" in (out / "crossplay.md").read_text()
+    order = [" ".join(line.split("] ", 1)[1].split(" (log")[0].split()) for line in log]
+    started = order.index(next(x for x in order if x.startswith("handover cross-play") and "started" in x))
+    assert order.index("fetchq diayn uniform done") > started  # it ran beside fetchq's last job
+    assert "handover cross-play done" in order and not any(x.startswith("fetchq cross-play") for x in order)
 
 
 def test_a_grid_job_trains_its_own_kitchen_only(tmp_path, monkeypatch):

@@ -375,14 +375,17 @@ def data_argv(a, job) -> list[str]:
 
 def make_data(tasks, methods, mixes_of, seeds, extra) -> None:
     """Every dataset of the grid's jobs (``make_datasets`` of each job's config) and the validation split's varied
-    humans of each task and mixture (``validation_robustness_sets``), as the jobs themselves would make them."""
+    humans of each task and mixture (``validation_robustness_sets``), as the jobs themselves would make them; on a
+    task learned from people, the field's BC models too (``field.prepare``), once instead of once per job."""
     from cogail_jax.data.sets import make_datasets
+    from cogail_jax.eval import field
 
     for t in tasks:
         for mix in mixes_of(t):
             for m in methods:
                 make_datasets(resolve_config(t, m, mix, seeds, extra))
             validation_robustness_sets(t, mix)
+            field.prepare(resolve_config(t, methods[0], mix, seeds, extra))  # before the jobs, which then read them
 
 
 CROSS = "cross-play"  # a cross-play job: (task, CROSS), ready once every job of its task has ended

@@ -78,3 +78,32 @@ def test_data_compiles_the_first_training_programs_before_the_data_exist(small_s
     assert sorted(n.split("-")[0] for n in ahead) == ["chunk", "init"]
     assert cli.main(["train", *TINY, "--run", str(small_splits / "run"), "--no-progress"]) == 0
     assert {p.name for p in folder.glob("*.jaxprog")} == ahead
+
+
+def test_data_reads_a_training_file_of_people_before_compiling_for_its_shapes(tmp_path, monkeypatch, capsys):
+    """On a task learned from recordings the training arrays' shapes are the training file's: `cogail data` makes that
+    split before it starts compiling the training programs (which read it), not beside it, so that a first run's
+    programs are compiled ahead instead of failing for a file not yet written."""
+    import threading
+
+    from cogail_jax.algo.config import resolve
+    from cogail_jax.data import sets
+    from cogail_jax.runtime import programs
+
+    pytest.importorskip("pandas")
+    monkeypatch.setenv("COGAIL_DATA", str(tmp_path / "data"))
+    monkeypatch.setattr(programs, "program_dir", lambda: tmp_path / "programs")
+    seen = []
+
+    def fake_ahead(cfg):  # what the compiling thread would read first
+        seen.append(sets.split_path(cfg, sets.TRAIN).is_file())
+        t = threading.Thread(target=lambda: None)
+        t.seconds, t.error = 0.0, None
+        t.start()
+        return t
+
+    monkeypatch.setattr(cli, "_compile_ahead", fake_ahead)
+    assert cli.main(["data", "--task", "overcooked_forced_coordination", "--no-robustness"]) == 0
+    assert seen == [True] and "training programs compiled ahead in" in capsys.readouterr().out
+    cfg = resolve("overcooked_forced_coordination", "paper", {})
+    assert all(sets.split_path(cfg, s).is_file() for s in (sets.VALIDATION, sets.TEST))

@@ -153,6 +153,25 @@ def test_bc_models_are_fitted_once_per_splits(few_people, monkeypatch, tmp_path)
     assert field.models_path(swapped, n) != first.path
 
 
+def test_cogail_data_fits_the_models_a_run_then_reads(few_people, monkeypatch, tmp_path):
+    """`cogail data` (``field.prepare``) fits the BC models and H_proxy's quality of a config's splits before any run:
+    a run's evaluation on the same splits then fits and plays nothing for them. A task outside the field's protocol
+    gets nothing."""
+    env, files = few_people
+    monkeypatch.setenv("COGAIL_CACHE", str(tmp_path))
+    n = {"episodes": 4, "select_episodes": 1, "bc_steps": 20}  # as the test above: its programs, from the cache
+    monkeypatch.setattr(field, "sizes", lambda: dict(n))
+    cfg = TrainConfig(task="overcooked", demos=str(files["train"]), validation=str(files["validation"]),
+                      heldout=str(files["test"]))
+    kept = field.prepare(cfg)
+    assert kept is not None and kept.is_file() and kept.parent.parent == tmp_path
+    monkeypatch.setattr(field, "fit_bc", lambda *a: pytest.fail("fitted again"))
+    monkeypatch.setattr(field.Field, "play", lambda *a, **k: pytest.fail("played again"))
+    run = field.Field(types.SimpleNamespace(env=env, cfg=cfg, files={k: str(v) for k, v in files.items()}, nets=None))
+    assert run.path == kept and run.proxy_quality()["with_itself"]["episodes"] == 4
+    assert field.prepare(TrainConfig(task="fetchq")) is None
+
+
 def test_selection_plays_checkpoints_side_by_side_as_one_at_a_time(people, monkeypatch):
     """Selection's checkpoints played together give each the figure it gets alone (same draws, no mixing of
     checkpoints or seeds), with the last batch padded."""

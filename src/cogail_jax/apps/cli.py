@@ -153,7 +153,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_args(da)
     da.add_argument("--run", default=None, help="make the datasets of this run's config instead (its config.json)")
     da.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
-                    help="also the varied humans of the robustness evaluation (default on)")
+                    help="also the varied humans of the robustness evaluation and, on a task learned from people, "
+                         "the evaluation's BC models of them (default on)")
     da.add_argument("--programs", action=argparse.BooleanOptionalAction, default=True,
                     help="meanwhile compile the programs `cogail train` with the same options starts with (initial "
                          "state, BC, the training chunk) into the compilation cache, so that a first run does not "
@@ -498,11 +499,24 @@ def _dispatch(a) -> int:
 
         cfg = TrainConfig.load(Path(a.run) / "config.json") if a.run else _config_from_args(a)
         t0, compiles = time.perf_counter(), CompileLog()
-        ahead = _compile_ahead(cfg) if a.programs and program_dir() is not None else None
+        ahead = None
+        if a.programs and program_dir() is not None:
+            from ..data import sets
+
+            if sets.train_episodes(cfg) is None:  # the programs' shapes are the training file's: made (or read) first
+                sets.split_path(cfg, sets.TRAIN, make=True)
+            ahead = _compile_ahead(cfg)
         for name, path in make_datasets(cfg, robustness=a.robustness).items():
             print(f"{name}: {path}")
         xla = sum(r["backend"] + r["trace"] for r in compiles.table().values())
         print(f"datasets ready in {time.perf_counter() - t0:.1f} s ({xla:.1f} s of it compiling)", flush=True)
+        if a.robustness:  # the evaluation's BC models of people (the field's protocol), while the programs compile
+            from ..eval import field
+
+            t1 = time.perf_counter()
+            if (kept := field.prepare(cfg)) is not None:
+                print(f"the field's BC models and H_proxy's quality ready in {time.perf_counter() - t1:.1f} s: {kept}",
+                      flush=True)
         if ahead is not None:
             ahead.join()
             print(f"training programs compiled ahead in {ahead.seconds:.1f} s" if ahead.error is None else

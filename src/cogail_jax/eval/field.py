@@ -350,6 +350,28 @@ class Field:
 SELECT_BATCH = 16  # checkpoints played together in selection
 
 
+def prepare(cfg) -> Path | None:
+    """Fit and keep the BC models and H_proxy's quality of ``cfg``'s splits before any run evaluates (`cogail data`
+    does, beside compiling the training programs ahead): a run's evaluation then reads them, and runs side by side
+    never each fit them. Their file; None where the field's protocol does not apply or no cache folder keeps them.
+    The splits must be made (``data.sets.make_datasets``)."""
+    from types import SimpleNamespace
+
+    from cogail_envs import get_task
+
+    from ..data import sets
+
+    env = get_task(cfg.task).make_env()
+    if not supported(env):
+        return None
+    files = {k: sets.split_path(cfg, k, env=env) for k in (sets.TRAIN, sets.VALIDATION, sets.TEST)}
+    if models_path(files, sizes()) is None:
+        return None
+    f = Field(SimpleNamespace(env=env, cfg=cfg, files=files, nets=None))
+    f.proxy_quality()
+    return f.path
+
+
 def evaluate(s, load, steps: list[int], n: dict | None = None) -> dict:
     """results.json's ``field`` for a run's set-up ``s`` (its splits' files in ``s.files``), ``load(step)`` giving a
     checkpoint's evaluation parameters: selection over ``steps`` with the validation pairs' BC model, then H_proxy,

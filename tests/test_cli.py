@@ -279,5 +279,5 @@ def test_train_with_eval_prepares_the_evaluation_while_training(demo_files, fetc
     bad.write_text("not hdf5")
     assert _tiny_train_eval(tmp_path / "run2", train, held, bad) == 2
     out, err = capsys.readouterr()
-    assert "warning" not in out and err.strip().count("\n") == 0 and "not an HDF5 file" in err
+    assert "warning" not in out and err.strip().count("\n") == 0 and "could not be read as an HDF5 file" in err
     assert (tmp_path / "run2" / "checkpoints").is_dir() and not (tmp_path / "run2" / "results.json").exists()

@@ -54,7 +54,7 @@ def test_loader_errors_name_file_demo_problem(case, demo_files, fetchq, tmp_path
 def test_loader_not_hdf5_and_missing(fetchq, tmp_path):
     junk = tmp_path / "junk.hdf5"
     junk.write_bytes(b"this is not hdf5")
-    with pytest.raises(data.DatasetError, match="not an HDF5 file"):
+    with pytest.raises(data.DatasetError, match="could not be read as an HDF5 file .*signature"):
         data.load_demos(junk, fetchq)
     with pytest.raises(data.DatasetError, match="does not exist"):
         data.load_demos(tmp_path / "nope.hdf5", fetchq)

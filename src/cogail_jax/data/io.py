@@ -169,8 +169,9 @@ def load_demos(path: str | os.PathLike, env, require_init: bool = False) -> Demo
         raise DatasetError(f"{where} does not exist: check the path or make one with `cogail demos`")
     try:
         f = h5py.File(path, "r")
-    except OSError:
-        raise DatasetError(f"{where} is not an HDF5 file: give a file written by `cogail demos` or `cogail import`")
+    except OSError as e:  # not HDF5, or unreadable (h5py's reason: a truncated file, a lock held elsewhere)
+        raise DatasetError(f"{where} could not be read as an HDF5 file ({e}): give a file written by `cogail demos` "
+                           "or `cogail import`")
     with f:
         task = f.attrs.get("task")
         if isinstance(task, bytes):

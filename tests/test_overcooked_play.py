@@ -54,7 +54,7 @@ def test_play_overcooked_in_the_browser(oc_run, browser):  # noqa: F811
         key, dx, choice = (Keys.ARROW_RIGHT, 1, 2) if x0 == 1 else (Keys.ARROW_LEFT, -1, 3)
         _hold(browser, key, 0.05)  # a tap shorter than a step still moves the cook
         _wait_status(browser, "running")
-        _hold(browser, Keys.SPACE, 0.05)
+        _hold(browser, Keys.SPACE, 0.4)  # held over steps: the interaction is recorded however loaded the machine
         browser.implicitly_wait(0)
         for _ in range(40):  # the page steps at 7 Hz: wait for the move to show
             if float(_attr(browser, "human", "data-x")) == x0 + dx:

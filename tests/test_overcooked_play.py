@@ -5,6 +5,7 @@ from __future__ import annotations
 import threading
 
 import h5py
+import jax
 import numpy as np
 import pytest
 
@@ -126,3 +127,31 @@ def test_coplay_on_a_people_task_is_the_fields_protocol(oc_run):
     q = f["proxy_quality"]
     assert q["with_itself"]["episodes"] == q["with_copy"]["episodes"] == n  # two clones, no seed axis
     assert 0.0 <= q["accuracy_train_samples"] <= 1.0
+
+
+def test_the_fields_plays_compiled_ahead_are_those_its_evaluation_plays(oc_run, monkeypatch):
+    """While a run trains, its evaluation's preparation compiles the field's plays (``Field.lower_plays``): selection's
+    batch, the robot with a BC model and self-play, lowered from the evaluation parameters' shapes, are the programs
+    ``field.evaluate`` then runs (so it finds them in the compilation cache)."""
+    from cogail_jax.algo.config import TrainConfig
+    from cogail_jax.apps.runs import Policies, build
+    from cogail_jax.eval import field
+
+    s = build(TrainConfig.load(oc_run / "config.json"), run_dir=oc_run)
+    params = Policies(oc_run, s).load(0)
+    here = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])  # as the evaluation's preparation places them
+    struct = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=here), params)
+    ahead = [lowered.as_text() for lowered in field.Field(s).lower_plays(struct, 1)]
+    played, make_play = [], field.make_play
+
+    def spy(*args, **kw):
+        fn = make_play(*args, **kw)
+
+        def call(*a):
+            played.append(fn.lower(*a).as_text())
+            return fn(*a)
+        return call
+
+    monkeypatch.setattr(field, "make_play", spy)
+    field.evaluate(s, lambda step: params, [0])
+    assert len(ahead) == 3 and all(text in played for text in ahead)

@@ -380,7 +380,8 @@ def _compile_eval(inp: EvalInputs, struct: dict, checkpoints: int, coplay: tuple
     """Compile ``inp``'s programs for a run of ``checkpoints`` checkpoints (``struct``: ``_eval_struct``) as
     ``eval_run`` will call them: the checkpoints' program for ``default_ckpt_batch`` of them, the replay of the
     extra sets for one checkpoint, and with ``coplay`` (its episodes per partner, or None for the default) co-play's
-    proxy and program (``inp.coplay``). They are traced one after another in this thread and each compiles in a
+    proxy and program (``inp.coplay``), or on a task learned from people the field's plays (into the compilation
+    cache, where its evaluation finds them). They are traced one after another in this thread and each compiles in a
     thread of its own as soon as it is traced (XLA's compilations run side by side; tracing holds Python's lock, and
     three programs tracing at once took three times as long each, slowing the training loop beside them)."""
     c = default_ckpt_batch(checkpoints)
@@ -394,6 +395,9 @@ def _compile_eval(inp: EvalInputs, struct: dict, checkpoints: int, coplay: tuple
             p = coplay_eval.prepare(inp.s, coplay[0])
             compiling.append(pool.submit(p.run.lower(struct["params"], struct["norm"], p.proxy, p.batch).compile))
             inp.coplay = p
+        elif coplay is not None:  # on a task learned from people, the field's plays (its BC models kept or fitted)
+            compiling += [pool.submit(lowered.compile)
+                          for lowered in field_eval.Field(inp.s).lower_plays(struct, checkpoints)]
         for f in compiling:
             f.result()
 

@@ -333,6 +333,26 @@ class Field:
             means += r.reshape(2, size, S, e).mean((0, 2, 3))[:len(chunk)].tolist()
         return means
 
+    def lower_plays(self, evalp: dict, checkpoints: int) -> list:
+        """What :func:`evaluate` plays for a run of ``checkpoints`` checkpoints, lowered from the shapes of its
+        evaluation parameters ``evalp`` (``{"params", "norm"}``, a leading seed axis, placed as the checkpoints' parameters
+        will be: ``jax.ShapeDtypeStruct`` with their sharding): selection's batch with the
+        validation pairs' model, the selected robot with a BC model, and self-play. Compiled ahead (while the run
+        trains), the evaluation finds them in the compilation cache."""
+        bot = robot(self.s.cfg, evalp)
+        size = min(SELECT_BATCH, checkpoints)
+        batch = jax.tree.map(lambda x: jax.ShapeDtypeStruct((size * x.shape[0],) + x.shape[1:], x.dtype,
+                                                            sharding=getattr(x, "sharding", None)
+                                                            if isinstance(x, jax.ShapeDtypeStruct) else None), bot)
+        seat = jnp.asarray(0, jnp.int32)
+        for kinds in (("bc", "robot"), ("robot", "robot")):
+            if kinds not in self.programs:
+                self.programs[kinds] = make_play(self.s.env, self.s.cfg, self.s.nets, kinds)
+        with_bc, self_play = self.programs[("bc", "robot")], self.programs[("robot", "robot")]
+        return [with_bc.lower(self.bc_validation, batch, episode_keys(self.n["select_episodes"], 1), seat),
+                with_bc.lower(self.h_proxy, bot, episode_keys(self.n["episodes"], 0), seat),
+                self_play.lower(bot, bot, episode_keys(self.n["episodes"], 3), seat)]
+
     def proxy_quality(self) -> dict:
         if self.quality is not None:
             return self.quality

@@ -1105,8 +1105,8 @@ def main(argv=None) -> int:
                         "and tabulated under 'Variants', not in Tables 1 and 2")
     p.add_argument("--force", action="store_true", help="evaluate again runs already in <out>/paper.json")
     p.add_argument("--merge", nargs="+", default=[], metavar="DIR",
-                   help="train nothing: add the paper.json of each DIR (runs made side by side) to --out's and "
-                        "rewrite the tables")
+                   help="train nothing: add the paper.json (and cross-play matrices) of each DIR (runs made side by "
+                        "side) to --out's and rewrite the tables")
     p.add_argument("--tables-only", action="store_true",
                    help="train nothing: rewrite the tables (and --readme's block) from <out>/paper.json")
     p.add_argument("--check", action="store_true",
@@ -1186,6 +1186,8 @@ def main(argv=None) -> int:
         for d in a.merge:
             if (Path(d) / "paper.json").is_file():
                 results.update(json.loads((Path(d) / "paper.json").read_text()))
+            if (Path(d) / "crossplay.json").is_file():  # its tasks' cross-play matrices replace ours
+                write_crossplay(out, json.loads((Path(d) / "crossplay.json").read_text()))
         tables(results, *table_axes(results, [], []), out, readme)
         tasks = []
     todo, old_rows = [], stale(results) if tasks else {}

@@ -90,6 +90,21 @@ def test_merge_adds_side_by_side_runs_to_the_tables(tmp_path):
     assert "| diayn | - | - | 44.4 +- 8.4 | 46.0 +- 1.0 | 50.0 +- 2.0 | 22.7 +- 1.5 |" in t1
 
 
+def test_merge_takes_the_cross_play_of_the_merged_grids(tmp_path):
+    """A merged grid's cross-play matrices replace the same tasks' and keep the others'."""
+    cell = lambda m: {"reward": {"mean": m, "se": 0.0}}  # noqa: E731
+    out, a = tmp_path / "out", tmp_path / "a"
+    for d, matrices in ((out, {"k1": {"x": {"x": cell(1.0)}}, "k2": {"x": {"x": cell(2.0)}}}),
+                        (a, {"k2": {"y": {"y": cell(3.0)}}})):
+        d.mkdir()
+        (d / "paper.json").write_text(json.dumps({}))
+        (d / "crossplay.json").write_text(json.dumps(matrices))
+    assert paper.main(["--out", str(out), "--merge", str(a)]) == 0
+    assert json.loads((out / "crossplay.json").read_text()) == {"k1": {"x": {"x": cell(1.0)}},
+                                                                 "k2": {"y": {"y": cell(3.0)}}}
+    assert "| y | 3.0 +- 0.0 |" in (out / "crossplay.md").read_text()
+
+
 def test_runs_are_cached_by_their_full_resolved_config(tmp_path, monkeypatch, capsys):
     """An entry of paper.json is reused only if its run's resolved config (hash) is the same: any --set that
     changes the config trains again (in a run directory of its own); one that gives the default value does not;

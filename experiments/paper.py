@@ -1186,8 +1186,10 @@ def main(argv=None) -> int:
         for d in a.merge:
             if (Path(d) / "paper.json").is_file():
                 results.update(json.loads((Path(d) / "paper.json").read_text()))
-            if (Path(d) / "crossplay.json").is_file():  # its tasks' cross-play matrices replace ours
-                write_crossplay(out, json.loads((Path(d) / "crossplay.json").read_text()))
+            if (Path(d) / "crossplay.json").is_file():  # its tasks' cross-play matrices, where no smaller than ours
+                ours = json.loads((out / "crossplay.json").read_text()) if (out / "crossplay.json").is_file() else {}
+                theirs = json.loads((Path(d) / "crossplay.json").read_text())  # (a shard's has only its own robots)
+                write_crossplay(out, {t: m for t, m in theirs.items() if len(m) >= len(ours.get(t, {}))})
         tables(results, *table_axes(results, [], []), out, readme)
         tasks = []
     todo, old_rows = [], stale(results) if tasks else {}

@@ -91,17 +91,19 @@ def test_merge_adds_side_by_side_runs_to_the_tables(tmp_path):
 
 
 def test_merge_takes_the_cross_play_of_the_merged_grids(tmp_path):
-    """A merged grid's cross-play matrices replace the same tasks' and keep the others'."""
+    """A merged grid's cross-play matrices replace the same tasks' and keep the others', but never by a smaller one
+    (a shard's, of only the robots it trained)."""
     cell = lambda m: {"reward": {"mean": m, "se": 0.0}}  # noqa: E731
     out, a = tmp_path / "out", tmp_path / "a"
-    for d, matrices in ((out, {"k1": {"x": {"x": cell(1.0)}}, "k2": {"x": {"x": cell(2.0)}}}),
-                        (a, {"k2": {"y": {"y": cell(3.0)}}})):
+    two = {"x": {"x": cell(4.0), "z": cell(4.0)}, "z": {"x": cell(4.0), "z": cell(4.0)}}
+    for d, matrices in ((out, {"k1": {"x": {"x": cell(1.0)}}, "k2": {"x": {"x": cell(2.0)}}, "k3": two}),
+                        (a, {"k2": {"y": {"y": cell(3.0)}}, "k3": {"y": {"y": cell(5.0)}}})):
         d.mkdir()
         (d / "paper.json").write_text(json.dumps({}))
         (d / "crossplay.json").write_text(json.dumps(matrices))
     assert paper.main(["--out", str(out), "--merge", str(a)]) == 0
     assert json.loads((out / "crossplay.json").read_text()) == {"k1": {"x": {"x": cell(1.0)}},
-                                                                 "k2": {"y": {"y": cell(3.0)}}}
+                                                                 "k2": {"y": {"y": cell(3.0)}}, "k3": two}
     assert "| y | 3.0 +- 0.0 |" in (out / "crossplay.md").read_text()
 
 

@@ -106,3 +106,22 @@ def test_ten_thousand_demos_one_call(fetchq):
     eps = demos.generate(fetchq, 10000, seed=2, batch=10000)  # the generator at a width of 10000 episodes
     assert eps.obs.shape[0] == 10000 and eps.success.mean() > 0.99
 
+
+
+def test_a_file_locked_by_another_descriptor_is_still_read_and_appended(demo_files, fetchq, tmp_path):
+    # a process forked while the file was open (XLA's GPU compilers) holds its lock until it exits
+    import fcntl
+    import os
+    import shutil
+
+    path = shutil.copyfile(demo_files[0], tmp_path / "held.hdf5")
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        assert data.load_demos(path, fetchq).num == 12
+        d = data.load_demos(demo_files[0], fetchq)
+        n = int(d.length[0])
+        i = data.append_demo(path, fetchq, d.obs[0, :n], d.actions_human[0, :n], d.actions_robot[0, :n], d.init[0])
+        assert i == 12 and data.load_demos(path, fetchq).num == 13
+    finally:
+        os.close(fd)

@@ -498,11 +498,11 @@ def fig3_png(results: dict, methods, path: Path) -> bool:
     return True
 
 
-SHIPPED = {"fetchq": "train-varied-20", "handover": "train-varied-10-policy-ema",
-           "seqmanip": "120-demos-train-varied-60-policy-ema-0.995-init-std-0.1-bc-std"}
+SHIPPED = {"fetchq": "train-varied-20", "handover": "480-demos-train-varied-10-policy-ema",
+           "seqmanip": "1000-demos-train-varied-60-policy-ema-0.995-init-std-0.1-bc-std"}
 """The variant label whose run has the settings ``make train TASK=...`` uses (experiments/<task>_paper.json), where
 they differ from the main table's (which trains every method on the team demonstrations alone)."""
-BUDGETS = {"handover": {"2x": "2x-train-varied-10-policy-ema"},
+BUDGETS = {"handover": {"2x": "2x-480-demos-train-varied-10-policy-ema"},
            "seqmanip": {"2x": "2x-1000-demos-train-varied-100-policy-ema-init-std-0.1-bc-std"}}
 """The variant labels of the larger budgets ``make train TASK=... BUDGET=b`` trains (experiments/<task>_<b>.json)."""
 

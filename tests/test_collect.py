@@ -62,9 +62,18 @@ def _hold(page, keys, seconds):
 
 
 def _click(page, elem):
+    """Click a button as a person would; where the page's text reflowed between locating it and clicking (another
+    element took the point: the status lines change every frame), locate it again, as a person would look again."""
+    from selenium.common.exceptions import ElementClickInterceptedException
     from selenium.webdriver.common.by import By
 
-    page.find_element(By.ID, elem).click()
+    for attempt in range(10):
+        try:
+            return page.find_element(By.ID, elem).click()
+        except ElementClickInterceptedException:
+            if attempt == 9:
+                raise
+            time.sleep(0.1)
 
 
 def _replayed_obs(c, init, ah, ar):

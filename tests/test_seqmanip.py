@@ -178,3 +178,25 @@ def test_the_dropper_turns_the_bar_back_only_beyond_what_the_drawer_takes():
     got = np.asarray(jax.vmap(lambda y: _drop_yaw({"yaw": jnp.stack([y, y])}, ts, 1))(held))
     np.testing.assert_allclose(got[:, 2], [0.2, -0.3, bound, -bound, -0.1], atol=1e-6)
     assert not got[:, :2].any()  # and levelled: a tilted or twisted bar is dropped flat
+    # an env's own bound (a training split's team that turns every bar back further) is the droppers' bound
+    got = np.asarray(jax.vmap(lambda y: _drop_yaw({"yaw": jnp.stack([y, y]), "drop_fits": 0.1}, ts, 0))(held))
+    np.testing.assert_allclose(got[:, 2], [0.15, -0.15, 0.15, -0.15, -0.1], atol=1e-6)
+
+
+def test_an_env_s_drop_bound_reaches_the_team_and_names_its_own_data():
+    import cogail_envs
+    from cogail_envs.seqmanip import team
+
+    plain, bound = cogail_envs.make_env("seqmanip"), cogail_envs.make_env("seqmanip", drop_yaw_bound=0.1)
+    assert plain.drop_yaw_bound is None and bound.drop_yaw_bound == 0.1
+    assert plain.version != bound.version  # a split made with it is another dataset
+    for env, want in ((plain, team.DROP_FITS), (bound, 0.1)):
+        seen = []  # what the team's context reads, traced only (running MJX's reset eagerly takes half a minute)
+
+        def context(key, env=env, seen=seen):
+            ts, _ = team.team_init(env, key, env.uniform_mix(), 0)
+            seen.append(team._context(env, ts, env.reset_from(env.sample_init(key)))["drop_fits"])
+            return key
+
+        jax.eval_shape(context, jax.random.PRNGKey(0))
+        assert seen == [want]

@@ -198,7 +198,8 @@ class SeqManip(CollabEnv):
     init_size = 10
     strategy_names = ("human-hands-over", "robot-opens")
 
-    def __init__(self, max_episode_steps: int = 600, robot_start_yaw: float = 0.0, robot_start_z: float = 0.03):
+    def __init__(self, max_episode_steps: int = 600, robot_start_yaw: float = 0.0, robot_start_z: float = 0.03,
+                 drop_yaw_bound: float | None = None):
         import mujoco
         from mujoco import mjx
 
@@ -207,6 +208,11 @@ class SeqManip(CollabEnv):
         self.init_lo[8], self.init_lo[9] = -float(robot_start_z), -float(robot_start_yaw)
         if (float(robot_start_yaw), float(robot_start_z)) != (0.0, 0.03):  # another start: another dataset version
             self.spec_tag = f"{type(self).spec_tag}-robot-start-{float(robot_start_yaw):g}-{float(robot_start_z):g}"
+        # the scripted droppers' yaw bound (rad, about the vertical): None, what the drawer takes (``team.DROP_FITS``);
+        # less makes the team turn every bar back further before it drops it (e.g. in a training split)
+        self.drop_yaw_bound = None if drop_yaw_bound is None else float(drop_yaw_bound)
+        if self.drop_yaw_bound is not None:
+            self.spec_tag = f"{self.spec_tag}-drop-yaw-bound-{self.drop_yaw_bound:g}"
         self.n_substeps, self.timestep = mc.N_SUBSTEPS, mc.TIMESTEP
         self.xml = seqmanip_xml()
         self.mj_model, self.mx = mc.build(self.xml)

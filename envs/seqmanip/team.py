@@ -331,6 +331,7 @@ def _context(env, ts: TeamState, state) -> dict:
         h_touch=h_touch, r_touch=r_touch,
         gap_open=jnp.stack([mc.finger_gap(d, h), mc.finger_gap(d, r)]) > 0.036,
         placed=env._inside(d) & ~h_touch & ~r_touch,
+        drop_fits=DROP_FITS if getattr(env, "drop_yaw_bound", None) is None else env.drop_yaw_bound,
         drop_tcp=[drop_c + (tcp[i] - p_obj) for i in (0, 1)],
         handle_pt=[handle + jnp.array([0.0, ts.handle_y[i], 0.0]) for i in (0, 1)],
         pull=[ts.anchor[i] - jnp.array([ts.open_amt, 0.0, 0.0]) for i in (0, 1)],
@@ -348,8 +349,8 @@ def _near(c, i, tgt, tol):
 
 def _drop_yaw(c, ts: TeamState, i):
     """The hinge targets agent ``i`` drops the bar at: level, its own yaw turned back within the bound the drawer
-    takes."""
-    bound = DROP_FITS + 0.5 * ts.drop[3]
+    takes (``c["drop_fits"]``, the env's ``drop_yaw_bound`` where it sets one)."""
+    bound = c.get("drop_fits", DROP_FITS) + 0.5 * ts.drop[3]
     return _flat(jnp.clip(mc.wrap_angle(c["yaw"][i], np.pi), -bound, bound))
 
 

@@ -1,6 +1,6 @@
-"""HR-SeqManip's settings: ``default_config()`` (the paper's budget, 1000 generated demonstrations where the paper had
-120, plus what validation chose; the reasons are in ``docs/settings.md``), the larger budget, the dataset split sizes and
-the paper's figures."""
+"""HR-SeqManip's settings: ``default_config()`` (the paper's budget, 1000 generated demonstrations where the paper
+had 120, plus what validation chose; the reasons are in ``docs/settings.md``), the larger budget, the dataset split
+sizes and the paper's figures."""
 from __future__ import annotations
 
 

@@ -117,7 +117,7 @@ def test_bench_tiny_writes_json(tmp_path, monkeypatch):
         monkeypatch.setitem(get_task("fetchq").splits, split, 4)
     with pytest.raises(data.MissingDataError, match="cogail data"):  # benchmarks make no data
         bench.main("fetchq", (4,), str(tmp_path / "x.json"), steps=4, unroll=8, calls=1, peer=False)
-    assert cli.main(["data", "--task", "fetchq", "--set", "train_varied=0", "--no-robustness"]) == 0
+    assert cli.main(["data", "--task", "fetchq", "--set", "train_varied=0", "--no-robustness", "--no-programs"]) == 0
     out = tmp_path / "bench.json"
     assert cli.main(["bench", "fetchq", str(out), "--sizes", "4", "--steps", "4", "--unroll", "8", "--calls", "1"]) == 0
     rows = json.loads(out.read_text())["rows"]

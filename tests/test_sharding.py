@@ -93,15 +93,26 @@ def test_sharded_mjx_chunk_has_no_cross_device_collectives(tmp_path):
         sig = lambda t: [(x.sharding, x.shape, x.dtype) for x in jax.tree.leaves(t)]
         assert sig(st2) == sig(st), "the next call would compile again: its inputs are placed differently"
         # the MJX tasks' default on several devices: the one-device program per device (XLA's GPU compiler
-        # crashes on the 2-device shard_map program); MJX's empty state fields come back as they went in
-        assert cfg.multi_device_mode == "per_device"
+        # crashes on the 2-device shard_map program); MJX's empty state fields come back as they went in. The
+        # per-device dispatch is shown with a cheap per-seed program over this placed handover state (compiling
+        # handover's training program once per device would cost two more MJX compilations; the real chunk's
+        # per-device results and compilations are checked on fetchq in test_two_devices_match_one).
+        assert cfg.multi_device_mode == "per_device" and s.chunk.multi == "per_device"
+        from cogail_jax.runtime.parallel import SeedChunk
         sig1 = lambda t: [(x.sharding, x.shape, x.dtype, x.weak_type) for x in jax.tree.leaves(t)]
         st3, ex3 = train_loop.place_on_devices(s.init(cfg.seeds, s.expert), s.expert, "all", 2)
-        before = sig1(st3)
-        st3, _ = s.chunk(st3, ex3)
+        assert any(x.size == 0 for x in jax.tree.leaves(st3))
+        def bump(st, ex):
+            out = jax.tree.map(lambda x: x + 1 if x.size and x.dtype == np.float32 else x, st)
+            return out, {"disc_loss": jax.numpy.zeros((1, st.update.shape[0]))}
+        per = SeedChunk(bump, multi="per_device")
+        before, obs0 = sig1(st3), np.asarray(st3.env_state.obs)
+        st3, _ = per(st3, ex3)
         assert sig1(st3) == before
-        st3, m3 = s.chunk(st3, ex3)
-        assert s.chunk._cache_size() == 2 and m3["disc_loss"].shape == (1, 2), s.chunk._cache_size()
+        st3, m3 = per(st3, ex3)
+        assert per._cache_size() == 2 and m3["disc_loss"].shape == (1, 2), per._cache_size()
+        want = obs0 + np.float32(1) + np.float32(1)  # each seed's block, bumped twice and put back in place
+        np.testing.assert_array_equal(np.asarray(st3.env_state.obs), want)
         n = {op: len(re.findall(op + r"(-start)?\\(", txt))
              for op in ("all-reduce", "all-gather", "collective-permute", "all-to-all", "reduce-scatter")}
         print(n)

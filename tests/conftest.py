@@ -77,13 +77,15 @@ def tiny_cfg(demo_files):
 # (xdist's loadgroup cannot split files more finely here: pytest 9 ignores the group suffix xdist 3.8 appends to
 # the test ids, so every test became a unit of its own and the MJX env modules built their fixtures again.)
 FILE_WEIGHTS = {
-    "test_coplay.py": 153, "test_sharding.py": 110, "test_cli.py": 108, "test_robustness.py": 101,
-    "test_train.py": 100, "test_multiprocess.py": 90,  # (two processes at a time: more than its share of the CPU)
-    "test_collect.py": 70, "test_presets.py": 64, "test_portable.py": 54, "test_env_shards.py": 52,
-    "test_play.py": 52, "test_tasks.py": 50, "test_discrete.py": 49, "test_reliability.py": 48, "test_handover.py": 45,
-    "test_example_task.py": 45, "test_seqmanip.py": 42, "test_protocol.py": 41, "test_segment_sums.py": 40,
-    "test_pose_slice.py": 39, "test_field.py": 38, "test_overcooked_play.py": 36, "test_data_step.py": 35,
-    "test_data.py": 31, "test_overcooked.py": 20, "test_fetchq.py": 18, "test_programs.py": 13, "test_paper.py": 7,
+    "test_coplay.py": 310, "test_robustness.py": 170, "test_train.py": 170, "test_cli.py": 157,
+    "test_sharding.py": 150, "test_collect.py": 144,
+    "test_multiprocess.py": 136,  # (two processes at a time: more than its share of the CPU)
+    "test_presets.py": 121, "test_overcooked_play.py": 89, "test_field.py": 86, "test_reliability.py": 80,
+    "test_seqmanip.py": 74, "test_handover.py": 71, "test_discrete.py": 64, "test_protocol.py": 58,
+    "test_data_step.py": 57, "test_example_task.py": 57, "test_tasks.py": 55, "test_portable.py": 47,
+    "test_env_shards.py": 38, "test_data.py": 32, "test_play.py": 31, "test_segment_sums.py": 30,
+    "test_programs.py": 24, "test_fetchq.py": 23, "test_pose_slice.py": 19, "test_overcooked.py": 17,
+    "test_paper.py": 15, "test_generator.py": 7,
 }
 
 

@@ -499,7 +499,12 @@ def test_a_killed_collect_keeps_every_finished_episode_of_a_user_task(tmp_path):
         assert f.attrs["task"] == "table_carry" and f.attrs["num_demos"] == 2
         for g in f["data"].values():
             assert len(g["obs"]) == 12 and g["init"].shape == (4,) and g.attrs["end"] == "timeout"
-            assert np.all(g["actions_human"][()] == [0.0, 1.0])
+            # the server steps at its own rate: a step before the client's first action of an episode arrives is
+            # recorded with the idle action (zeros), so a loaded machine may record a few; every other step holds
+            # the action the client sent
+            a = g["actions_human"][()]
+            sent, idle = np.all(a == [0.0, 1.0], axis=1), np.all(a == 0.0, axis=1)
+            assert np.all(sent | idle) and sent.any(), a
 
 
 def test_collect_help_and_bad_options(tmp_path, capsys):

@@ -12,6 +12,9 @@ from cogail_envs.variations import CHANGE_OF_MIND
 from cogail_jax.eval import coplay
 
 LATER = 15  # robot B reacts this many steps later than robot A (or, where it has speeds, moves at half speed)
+# The human-sees-only-the-state worlds' time limit: seqmanip's robots part ways after ~105 of its 600 steps, so 240
+# steps show the parting and the human's actions well after it (the program's run time scales with the steps).
+STEPS = {"seqmanip": 240}
 
 
 def _other_plan(ts):
@@ -49,7 +52,7 @@ def two_robots():
 
     def get(name):
         if name not in fns:
-            env = make_env(name)
+            env = make_env(name, **({"max_episode_steps": STEPS[name]} if name in STEPS else {}))
             team = get_task(name).team
 
             def run(key):

@@ -13,8 +13,12 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # backend optimisation (tests/test_handover.py: 88 s of CPU time -> 51 s, and 41 s without LLVM's expensive passes).
 # Inherited by the workers and subprocesses: the same flags everywhere, so the compilation cache keys and the
 # bitwise-resume checks are unaffected.
+# The flags also hold the one every `cogail` command adds (cogail_jax.runtime.xla.set_deterministic; a GPU flag, no
+# change on the CPU): JAX's compilation cache keys read XLA_FLAGS when a program is compiled, so a worker whose
+# first in-process `cli.main` appended it, or a `cogail` subprocess, would otherwise look for every program under
+# keys of its own and compile again what the other worker and the other subprocesses compiled.
 _FAST_COMPILE = ("--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false "
-                 "--xla_llvm_disable_expensive_passes=true")
+                 "--xla_llvm_disable_expensive_passes=true --xla_gpu_deterministic_ops=true")
 if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_FAST_COMPILE}".strip()
 # One XLA compilation cache for the whole test run, in a fresh directory (CI starts empty, nothing is kept):

@@ -8,9 +8,10 @@ import textwrap
 # collectives come from XLA's SPMD partitioning, which these flags leave alone: the chunk under plain jit sharding
 # propagation (the layout the MJX test guards against) compiles to the same two all-reduces with them as without.
 # LLVM's expensive passes are off too, as in tests/conftest.py's flags (they act after the HLO is final: the HLO
-# text the collective counts read is the same).
+# text the collective counts read is the same). With the deterministic-GPU flag of every `cogail` command, as there:
+# the subprocesses' compilation cache keys are those of the `cogail` runs beside them.
 FAST_COMPILE = ("--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false "
-                "--xla_llvm_disable_expensive_passes=true")
+                "--xla_llvm_disable_expensive_passes=true --xla_gpu_deterministic_ops=true")
 
 
 def test_two_devices_match_one(tiny_cfg, tmp_path):

@@ -525,3 +525,41 @@ def test_bc_std_sets_each_action_dims_std_to_the_cloned_residual(tiny_cfg, fetch
     np.testing.assert_array_equal(np.asarray(p0["actor"]["params"]["log_std"]), 0.0)
     with pytest.raises(ConfigError, match="bc_steps"):
         cfg.replace(bc_steps=0).validate()
+
+
+def test_motion_reads_the_change_since_the_last_step(tiny_cfg, fetchq):
+    """``motion``: the normaliser holds the demonstrations' per-step change (none across two demonstrations), the
+    actor reads it beside the observation (nothing at an episode's first step, whose history repeats it), and the
+    replay protocol's robot acts on it; without ``motion`` the input is the observation alone."""
+    from cogail_jax.algo import networks
+    from cogail_jax.eval import rollouts
+
+    expert = train.expert_arrays(data.load_demos(tiny_cfg.demos, fetchq), tiny_cfg.history)
+    norm = train.fit_normalizer(expert, motion=True)
+    n = int(train.expert_steps(expert))
+    o, d = expert["obs"][:n], expert["demo"][:n]
+    same = d[1:] == d[:-1]
+    change = np.concatenate([np.zeros_like(o[:1]), np.where(same[:, None], o[1:] - o[:-1], 0.0)])
+    np.testing.assert_allclose(norm["motion_std"], np.maximum(change.std(0), train.MOTION_STD_FLOOR), rtol=1e-5)
+    assert np.any(o[1:][~same] != o[:-1][~same])  # the demonstrations' boundaries would have counted
+    assert "motion_std" not in train.fit_normalizer(expert)
+    D = fetchq.observation_size
+    hist = jnp.asarray(expert["hist"][:n])
+    x = networks.policy_input(norm, hist)
+    assert x.shape == (n, 2 * D) and networks.policy_input({"mean": norm["mean"], "std": norm["std"]}, hist).shape == (n, D)
+    np.testing.assert_allclose(x[:, D:], (expert["hist"][:n, -1] - expert["hist"][:n, -2]) / norm["motion_std"], rtol=1e-5)
+    assert np.all(np.asarray(x[0, D:]) == 0)  # a first step: the history repeats the first observation
+    cfg = tiny_cfg.replace(motion=True, bc_steps=0, seeds=(1,))
+    init, _, nets = train.make_train_fns(cfg, fetchq, norm)
+    s = init(cfg.seeds, expert)
+    params, nrm = jax.tree.map(lambda a: a[0], (s.params, s.norm))
+    _, robot_step = rollouts.make_robot_step(cfg, fetchq, nets)
+    state = fetchq.reset(jax.random.PRNGKey(0))
+    still = jnp.repeat(state.obs[None], cfg.history + 1, 0)
+    moved = still.at[-2].add(0.05)
+    a_h = jnp.zeros((fetchq.human_action_size,))
+    _, _, _, ar_still = robot_step(params, nrm, state, still, a_h, a_h)
+    _, _, _, ar_moved = robot_step(params, nrm, state, moved, a_h, a_h)
+    assert not np.allclose(ar_still, ar_moved)
+    with pytest.raises(ConfigError, match="history"):
+        tiny_cfg.replace(motion=True, history=1).validate()

@@ -90,6 +90,11 @@ class TrainConfig:
     # each agent's frame and the reverse), "both" all of them, "object" the object-centric features instead of the
     # absolute orientations (the env's ``orientation_dims``: nothing that tells how the scene is turned)
     obs_frame: str = "both"
+    # the observation's change since the previous step beside it (our addition): the actor, the critic and the
+    # discriminator also read
+    # s_t - s_{t-1} of what they read, in units of the demonstrations' per-step change (0 at an episode's first
+    # step), so a partner who holds still reads the same wherever and however they hold the object
+    motion: bool = False
     # discriminator
     disc_loss: str = "auto"  # "bce" | "lsgan" | "auto" (the task's default_config(), else lsgan)
     disc_lr: float = 3e-4
@@ -198,6 +203,9 @@ class TrainConfig:
                 f"must be divisible by num-minibatches ({self.num_minibatches})")
         if self.obs_frame not in OBS_FRAMES:
             raise ConfigError(f"obs_frame must be one of {', '.join(OBS_FRAMES)}, got {self.obs_frame!r}")
+        if self.motion and self.history < 2:
+            raise ConfigError(f"motion reads the change since the previous step from psi's history, which needs history "
+                              f">= 2, got {self.history}: set history=2 or more, or motion=false")
         if not self.obs_std_floor > 0:
             raise ConfigError(f"obs_std_floor must be positive, got {self.obs_std_floor}")
         if self.multi_device not in ("auto", "shard_map", "per_device"):

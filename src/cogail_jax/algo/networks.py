@@ -92,6 +92,23 @@ def normalize(norm: dict, x):
     return (x - norm["mean"]) / norm["std"]
 
 
+MOTION_CLIP = 5.0
+
+
+def policy_input(norm: dict, hist, back: int = 0):
+    """What the actor and the critic read at the step ``back`` steps before the last of ``hist`` (..., K + 1, D raw
+    observations, the last the current one): the normalised observation and, where the normaliser has
+    ``motion_std`` (config ``motion``), its change since the step before in units of the demonstrations'
+    per-step change, clipped to +-``MOTION_CLIP`` (a history starts as copies of the first observation: no change; a
+    feature that jumps, a flag or a wrapped angle, or a policy's wild step, stays in range)."""
+    t = hist.shape[-2] - 1 - back
+    x = normalize(norm, hist[..., t, :])
+    if "motion_std" not in norm:
+        return x
+    change = (hist[..., t, :] - hist[..., max(t - 1, 0), :]) / norm["motion_std"]
+    return jnp.concatenate([x, jnp.clip(change, -MOTION_CLIP, MOTION_CLIP)], -1)
+
+
 def history_input(norm: dict, hist):
     """psi's history input: (..., K+1, D) raw observations -> (..., (K+1) D) normalised."""
     h = normalize(norm, hist)
@@ -107,5 +124,5 @@ def gaussian_entropy(log_std):
     return jnp.sum(log_std + 0.5 * jnp.log(2 * jnp.pi * jnp.e), axis=-1)
 
 
-__all__ = ["Actor", "Critic", "Psi", "Discriminator", "make_networks", "disc_kind", "normalize", "history_input",
+__all__ = ["Actor", "Critic", "Psi", "Discriminator", "make_networks", "disc_kind", "normalize", "policy_input", "history_input",
            "gaussian_log_prob", "gaussian_entropy", "jax"]

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 
 from . import actions, shards
 from .config import TrainConfig
-from .networks import normalize
+from .networks import policy_input
 
 
 class Carry(NamedTuple):
@@ -83,7 +83,7 @@ def rollout(cfg: TrainConfig, env, actor, critic, params, norm, carry: Carry, ke
 
     def body(c: Carry, key):
         k_act, k_code = jax.random.split(key)
-        obs_n = normalize(norm, c.env_state.obs)
+        obs_n = policy_input(norm, c.hist)
         mean, log_std = actor(params["actor"], obs_n, c.z)
         value = critic(params["critic"], obs_n, c.z)
         a, act = actions.sample(spec, mean, log_std, k_act)
@@ -110,7 +110,7 @@ def rollout(cfg: TrainConfig, env, actor, critic, params, norm, carry: Carry, ke
     if e > 1:
         carry = carry._replace(code_counter=counter0 + shards.total(cfg, (carry.code_counter - counter0) // e))
     # the critic's value of a timed-out episode's last observation (the auto-reset replaced it in the carry)
-    final_obs = normalize(norm, traj.pop("next_obs"))
+    final_obs = policy_input(norm, jnp.stack([traj["obs"], traj.pop("next_obs")], -2))
     traj["final_value"] = jnp.where(traj["truncation"] > 0, critic(params["critic"], final_obs, traj["z"]), 0.0)
-    last_value = critic(params["critic"], normalize(norm, carry.env_state.obs), carry.z)
+    last_value = critic(params["critic"], policy_input(norm, carry.hist), carry.z)
     return carry, traj, last_value

@@ -26,7 +26,7 @@ import optax
 
 from . import actions, losses, shards
 from .config import HYPER, TrainConfig, chunk_key, hyper_values, program_key
-from .networks import disc_kind, history_input, make_networks, normalize
+from .networks import disc_kind, history_input, make_networks, policy_input
 from ..runtime.parallel import SeedChunk
 from ..runtime.programs import stored
 from .rollout import Carry, code_grid, initial_carry, rollout
@@ -129,7 +129,7 @@ def expert_steps(expert) -> Any:
 def sample_expert(norm, expert, key, n):
     """A minibatch of ``n`` expert steps, observations and histories normalised."""
     i = jax.random.randint(key, (n,), 0, expert_steps(expert))
-    return {"obs": normalize(norm, expert["obs"][i]), "ah": expert["ah"][i], "ar": expert["ar"][i],
+    return {"obs": policy_input(norm, expert["hist"][i]), "ah": expert["ah"][i], "ar": expert["ar"][i],
             "hist": history_input(norm, expert["hist"][i]), "prev_ah": expert["prev_ah"][i],
             "demo": expert["demo"][i]}
 
@@ -144,12 +144,13 @@ def init_state(ctx: Context, norm: dict, code_init, rng) -> TrainState:
     cfg, env, mods = ctx.cfg, ctx.env, ctx.modules
     k_a, k_c, k_p, k_d, k_env, k_z, rng = jax.random.split(rng, 7)
     d, z0 = env.observation_size, jnp.zeros((1, cfg.code_dim))
+    d_in = 2 * d if cfg.motion else d  # networks.policy_input
     params = {
-        "actor": mods["actor"].init(k_a, jnp.zeros((1, d)), z0),
-        "critic": mods["critic"].init(k_c, jnp.zeros((1, d)), z0),
+        "actor": mods["actor"].init(k_a, jnp.zeros((1, d_in)), z0),
+        "critic": mods["critic"].init(k_c, jnp.zeros((1, d_in)), z0),
         "psi": mods["psi"].init(k_p, jnp.zeros((1, (cfg.history + 1) * d + env.human_action_size))),
         "codes": code_init + 0.1 * jax.random.normal(k_z, code_init.shape),
-        "disc": mods["disc"].init(k_d, jnp.zeros((1, d + env.action_size))),
+        "disc": mods["disc"].init(k_d, jnp.zeros((1, d_in + env.action_size))),
     }
     c = initial_carry(cfg, env, k_env, k_z)
     params = with_ema_start(cfg, params)
@@ -297,8 +298,8 @@ def inner_updates(ctx: Context, state: TrainState, flat, expert, key):
         k_g, k_e, k_gp = jax.random.split(key, 3)
         gen = jax.tree.map(lambda x: x[jax.random.randint(k_g, (nb,), 0, flat["obs"].shape[0])], flat)
         exp_b = sample_expert(norm, expert, k_e, nb)
-        gen_b = {"obs": normalize(norm, gen["obs"]), "act": gen["act"], "hist": history_input(norm, gen["hist"]),
-                 "prev_obs": normalize(norm, gen["hist"][:, -2]), "first": gen["first"], "z": gen["z"],
+        gen_b = {"obs": policy_input(norm, gen["hist"]), "act": gen["act"], "hist": history_input(norm, gen["hist"]),
+                 "prev_obs": policy_input(norm, gen["hist"], 1), "first": gen["first"], "z": gen["z"],
                  "prev_ah": gen["prev_ah"]}
         new, aux_opt, aux_m = aux_step(ctx, params, aux_opt, gen_b, exp_b)
         if ctx.cfg.task_rl:  # no discriminator
@@ -339,7 +340,7 @@ def rewards(ctx: Context, state: TrainState, traj):
     if cfg.task_rl:
         r = traj["task_reward"]
     else:
-        x = jnp.concatenate([normalize(state.norm, traj["obs"]), traj["act"]], -1)
+        x = jnp.concatenate([policy_input(state.norm, traj["hist"]), traj["act"]], -1)
         r = losses.discriminator_reward(nets.disc(state.params["disc"], x), nets.disc_kind)
         if cfg.task_reward > 0:
             r = r + ctx.hp["task_reward"] * traj["task_reward"]
@@ -383,7 +384,7 @@ def ppo_update(ctx: Context, state: TrainState, traj, adv, ret, key, expert):
     """``ppo_epochs`` of ``losses.ppo_objective`` over shuffled minibatches of the rollout (actor, critic)."""
     cfg, nets = ctx.cfg, ctx.nets
     n, on = shards.local_envs(cfg) * cfg.unroll_length, losses.objective_terms(cfg)
-    obs_n = normalize(state.norm, traj["obs"]).reshape(n, -1)
+    obs_n = policy_input(state.norm, traj["hist"]).reshape(n, -1)
     z, action = traj["z"].reshape(n, -1), traj["action"].reshape(n, -1)
     # log-probs under the co-policy as the inner (L_z / L_a) updates left it: the PPO ratio starts at 1
     mean, log_std = nets.actor(state.params["actor"], obs_n, z)
@@ -391,7 +392,7 @@ def ppo_update(ctx: Context, state: TrainState, traj, adv, ret, key, expert):
     flat = {"obs": obs_n, "z": z, "action": action, "logp": logp_old, "adv": adv.reshape(n), "ret": ret.reshape(n)}
     if losses.lz_in_ppo(cfg):  # L_z's co-policy part, on the rollout's own steps
         hist = traj["hist"].reshape((n,) + traj["hist"].shape[2:])
-        flat.update(hist=history_input(state.norm, hist), prev_obs=normalize(state.norm, hist[:, -2]),
+        flat.update(hist=history_input(state.norm, hist), prev_obs=policy_input(state.norm, hist, 1),
                     first=traj["first"].reshape(n))
     mb = n // cfg.num_minibatches
     # policy_cooldown: the last updates train the critic only
@@ -458,7 +459,7 @@ def make_train_fns(cfg: TrainConfig, env, norm_stats: dict[str, np.ndarray]):
     """Build ``init(seeds, expert) -> state``, the jitted ``chunk(state, expert) -> (state, metrics)``
     (a ``parallel.SeedChunk``) and the flax modules."""
     ctx = make_context(cfg.validate(), env)
-    norm = {"mean": jnp.asarray(norm_stats["mean"], jnp.float32), "std": jnp.asarray(norm_stats["std"], jnp.float32)}
+    norm = {k: jnp.asarray(norm_stats[k], jnp.float32) for k in ("mean", "std", "motion_std") if k in norm_stats}
     n_demos = int(norm_stats["num_demos"])
     code_init = (jnp.arctanh(jnp.asarray(demo_code_init(norm_stats["features"], cfg.code_dim), jnp.float32))
                  if "features" in norm_stats else jnp.zeros((n_demos, cfg.code_dim)))
@@ -530,12 +531,18 @@ def env_leaves(state: TrainState):
 
 
 # ------------------------------------------------------------------------------------------------ normaliser, codes
-def fit_normalizer(expert: dict[str, np.ndarray], std_floor: float = 1e-2, unread=()) -> dict[str, np.ndarray]:
+MOTION_STD_FLOOR = 1e-3  # floor of the per-step change's std (a thousandth of the observation's units)
+
+
+def fit_normalizer(expert: dict[str, np.ndarray], std_floor: float = 1e-2, unread=(),
+                   motion: bool = False) -> dict[str, np.ndarray]:
     """Observation mean/std of the training demonstrations (std floored at ``std_floor`` so near-constant
     features, e.g. an MJX gripper's tilt, do not blow up when a policy drifts from them), the number of
     demonstrations (BC pre-training learns one code per demonstration) and each demonstration's trajectory
     features (the per-demonstration codes start from their principal components). The observation indices
-    ``unread`` normalise to 0 (mean 0, std infinite): no network reads them."""
+    ``unread`` normalise to 0 (mean 0, std infinite): no network reads them. ``motion``: also ``motion_std``, the std
+    of the per-step change of each feature within the demonstrations (0 at their first steps, as a history starts),
+    floored at ``MOTION_STD_FLOOR`` (``networks.policy_input``)."""
     n = int(expert_steps(expert))
     expert = {k: np.asarray(expert[k])[:n] for k in ("obs", "demo")}
     mean, std = expert["obs"].mean(0), np.maximum(expert["obs"].std(0), std_floor)
@@ -543,8 +550,17 @@ def fit_normalizer(expert: dict[str, np.ndarray], std_floor: float = 1e-2, unrea
     if unread:
         mean, std = mean.copy(), std.copy()
         mean[unread], std[unread] = 0.0, np.inf
-    return {"mean": mean, "std": std, "num_demos": int(expert["demo"].max()) + 1,
-            "features": demo_features((expert["obs"] - mean) / std, expert["demo"])}
+    out = {"mean": mean, "std": std, "num_demos": int(expert["demo"].max()) + 1,
+           "features": demo_features((expert["obs"] - mean) / std, expert["demo"])}
+    if motion:
+        o, d = expert["obs"], expert["demo"]
+        change = np.where((d[1:] == d[:-1])[:, None], o[1:] - o[:-1], 0.0)
+        change = np.concatenate([np.zeros_like(o[:1]), change], 0)
+        m_std = np.maximum(change.std(0), MOTION_STD_FLOOR).astype(np.float32)
+        if unread:
+            m_std[unread] = np.inf
+        out["motion_std"] = m_std
+    return out
 
 
 def unread_dims(cfg: TrainConfig, env) -> tuple[int, ...]:

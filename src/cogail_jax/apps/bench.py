@@ -149,7 +149,7 @@ def main(task: str, sizes=(64, 1024, 8192), out: str | None = None, env_only: bo
         base = resolve(task) if task_settings else TrainConfig(task=task)
         demos = data.load_demos(sets.split_path(base, sets.TRAIN, env=env), env)
         expert = train.expert_arrays(demos, base.history)
-        norm = train.fit_normalizer(expert, base.obs_std_floor)
+        norm = train.fit_normalizer(expert, base.obs_std_floor, train.unread_dims(base, env), base.motion)
     rows = []
     for n in sizes_env:
         r = env_throughput(env, n, steps=steps)

@@ -83,7 +83,7 @@ def build(cfg: TrainConfig, need_heldout: bool = True, need_validation: bool | N
     if run_dir is not None and files:
         manifest.check(run_dir, files, env.version)
     init, chunk, nets = train.make_train_fns(cfg, env, train.fit_normalizer(expert, cfg.obs_std_floor,
-                                                                               train.unread_dims(cfg, env)))
+                                                                               train.unread_dims(cfg, env), cfg.motion))
     return Setup(cfg, env, expert, heldout, init, chunk, nets, train_metrics, validation,
                  {k: str(v) for k, v in files.items()})
 
@@ -123,6 +123,8 @@ def compile_ahead(cfg: TrainConfig) -> None:
                   "demo": jax.ShapeDtypeStruct((rows,), np.int32), "count": jax.ShapeDtypeStruct((), np.int32)}
     d = env.observation_size
     stats = {"mean": np.zeros(d, np.float32), "std": np.ones(d, np.float32), "num_demos": n}  # values unread
+    if cfg.motion:
+        stats["motion_std"] = np.ones(d, np.float32)
     init, chunk, _ = train.make_train_fns(cfg, env, stats)
     state = init.compile_ahead(cfg.seeds, expert)
     chunk.lower(state, expert).compile()

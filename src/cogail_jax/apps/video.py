@@ -8,22 +8,23 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..algo import actions
+from ..algo import actions, networks
 
 
 def _rollout_states(env, policy, init_states, T):
-    """Scan a batched policy ``policy(state, t, key) -> action`` from ``init_states``; stack the states."""
+    """Scan a batched policy ``policy(state, prev_obs, t, key) -> action`` from ``init_states`` (``prev_obs``: the
+    observation one step before, the first one at the start); stack the states."""
 
     def body(carry, t):
-        state, fin, key = carry
+        state, prev, fin, key = carry
         key, k = jax.random.split(key)
-        nxt = jax.vmap(env.step)(state, policy(state, t, k))
+        nxt = jax.vmap(env.step)(state, policy(state, prev, t, k))
         keep = lambda a, b: jnp.where(fin.reshape(fin.shape + (1,) * (a.ndim - 1)), a, b)
-        state = jax.tree.map(keep, state, nxt)
-        return (state, fin | (nxt.done > 0), key), state
+        prev, state = jnp.where(fin[:, None], prev, state.obs), jax.tree.map(keep, state, nxt)
+        return (state, prev, fin | (nxt.done > 0), key), state
 
     fin = jnp.zeros(init_states.done.shape, bool)
-    _, states = jax.lax.scan(body, (init_states, fin, jax.random.PRNGKey(0)), jnp.arange(T))
+    _, states = jax.lax.scan(body, (init_states, init_states.obs, fin, jax.random.PRNGKey(0)), jnp.arange(T))
     return states
 
 
@@ -63,8 +64,8 @@ def _run_rollouts(run: Path, num: int, steps: int | None):
     z = codes[np.linspace(0, len(codes) - 1, num).astype(int)]
     z = z if cfg.use_code else jnp.zeros_like(z)
 
-    def policy(st, t, key):
-        mean, _ = actor(params["actor"], (st.obs - norm["mean"]) / norm["std"], z)
+    def policy(st, prev, t, key):
+        mean, _ = actor(params["actor"], networks.policy_input(norm, jnp.stack([prev, st.obs], -2)), z)
         return actions.act(actions.spec_of(env), mean, key)
 
     states0 = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(7), num))

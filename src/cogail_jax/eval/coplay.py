@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..algo import actions
+from ..algo.networks import policy_input
 
 COPLAY_SEED = 2468  # episode i's key: fold_in(PRNGKey(COPLAY_SEED), i)
 ROBOT_SALT = 4_242  # the scripted robot's own team-state key: fold_in(episode key, ROBOT_SALT)
@@ -299,7 +300,7 @@ def make_coplay_fn(env, cfg=None, nets=None):
         a_r = jnp.zeros((env.robot_action_size,), jnp.float32)
         if learned:
             z = psi_code(params, norm, hist[-(K + 1):], prev_ah)
-            mean, _ = actor(params["actor"], (state.obs - norm["mean"]) / norm["std"], z)
+            mean, _ = actor(params["actor"], policy_input(norm, hist), z)
             a_r = actions.agent_act(spec.robot_discrete, mean[Ah:], jax.random.fold_in(k_r, 2))
         if robot_act is not None:
             ts_r, a_s = robot_act(env, ts_r, state, k_r)

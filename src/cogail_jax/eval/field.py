@@ -156,7 +156,7 @@ def make_play(env, cfg, nets, kinds: tuple[str, str], other: tuple | None = None
             norm = agent["norm"]  # as the replay protocol's robot (rollouts.make_robot_step), its code switch data
             h = networks.history_input(norm, view_hist[-(K + 1):])
             z = psi(agent["params"]["psi"], jnp.concatenate([h, prev_partner])) * agent["code"]
-            mean, _ = actor(agent["params"]["actor"], networks.normalize(norm, view_hist[-1]), z)
+            mean, _ = actor(agent["params"]["actor"], networks.policy_input(norm, view_hist), z)
             return actions.agent_act(True, mean[Ah:], key)
 
         return robot_act

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..algo import actions
 from ..algo.config import TrainConfig, program_key
+from ..algo.networks import policy_input
 from ..runtime.programs import stored
 
 
@@ -83,7 +84,7 @@ def make_robot_step(cfg: TrainConfig, env, nets):
 
     def robot_step(params, norm, state, hist, prev_ah, a_h, key=None):
         z = psi_code(params, norm, hist, prev_ah)
-        mean, _ = actor(params["actor"], normalize(norm, state.obs), z)
+        mean, _ = actor(params["actor"], policy_input(norm, hist), z)
         a_r = (actions.agent_mode(spec.robot_discrete, mean[Ah:]) if key is None else
                actions.agent_act(spec.robot_discrete, mean[Ah:], key))
         nxt = env.step(state, jnp.concatenate([a_h, a_r]))
@@ -124,7 +125,7 @@ def _episodes_fn(cfg: TrainConfig, env, nets):
         """The joint action and the human's; ``p``: the replayed human's position in its recording."""
         z = jnp.where(ep["replay"], psi_code(params, norm, hist, prev_ah),
                       ep["code"] if cfg.use_code else jnp.zeros_like(ep["code"]))
-        mean, _ = actor(params["actor"], (state.obs - norm["mean"]) / norm["std"], z)
+        mean, _ = actor(params["actor"], policy_input(norm, hist), z)
         a = actions.act(spec, mean, key)
         recorded = jnp.where(p < ep["length"], ep["ah"][jnp.minimum(p, ep["ah"].shape[0] - 1)], 0.0)
         wait, a_wait = env.replay_hold(state, recorded)

@@ -547,7 +547,9 @@ def test_motion_reads_the_change_since_the_last_step(tiny_cfg, fetchq):
     hist = jnp.asarray(expert["hist"][:n])
     x = networks.policy_input(norm, hist)
     assert x.shape == (n, 2 * D) and networks.policy_input({"mean": norm["mean"], "std": norm["std"]}, hist).shape == (n, D)
-    np.testing.assert_allclose(x[:, D:], (expert["hist"][:n, -1] - expert["hist"][:n, -2]) / norm["motion_std"], rtol=1e-5)
+    change = (expert["hist"][:n, -1] - expert["hist"][:n, -2]) / norm["motion_std"]
+    assert np.abs(change).max() > networks.MOTION_CLIP  # the clip below is exercised
+    np.testing.assert_allclose(x[:, D:], np.clip(change, -networks.MOTION_CLIP, networks.MOTION_CLIP), rtol=1e-5)
     assert np.all(np.asarray(x[0, D:]) == 0)  # a first step: the history repeats the first observation
     cfg = tiny_cfg.replace(motion=True, bc_steps=0, seeds=(1,))
     init, _, nets = train.make_train_fns(cfg, fetchq, norm)

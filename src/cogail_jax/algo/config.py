@@ -91,9 +91,8 @@ class TrainConfig:
     # absolute orientations (the env's ``orientation_dims``: nothing that tells how the scene is turned)
     obs_frame: str = "both"
     # the observation's change since the previous step beside it (our addition): the actor, the critic and the
-    # discriminator also read
-    # s_t - s_{t-1} of what they read, in units of the demonstrations' per-step change (0 at an episode's first
-    # step), so a partner who holds still reads the same wherever and however they hold the object
+    # discriminator also read s_t - s_{t-1} of what they read, in units of the demonstrations' per-step change (0 at
+    # an episode's first step), so a partner who holds still reads the same wherever and however they hold the object
     motion: bool = False
     # discriminator
     disc_loss: str = "auto"  # "bce" | "lsgan" | "auto" (the task's default_config(), else lsgan)

@@ -96,7 +96,7 @@ MOTION_CLIP = 5.0
 
 
 def policy_input(norm: dict, hist, back: int = 0):
-    """What the actor and the critic read at the step ``back`` steps before the last of ``hist`` (..., K + 1, D raw
+    """What the actor, the critic and the discriminator read (the last beside the actions) at the step ``back`` steps before the last of ``hist`` (..., K + 1, D raw
     observations, the last the current one): the normalised observation and, where the normaliser has
     ``motion_std`` (config ``motion``), its change since the step before in units of the demonstrations'
     per-step change, clipped to +-``MOTION_CLIP`` (a history starts as copies of the first observation: no change; a

@@ -565,3 +565,26 @@ def test_motion_reads_the_change_since_the_last_step(tiny_cfg, fetchq):
     assert not np.allclose(ar_still, ar_moved)
     with pytest.raises(ConfigError, match="history"):
         tiny_cfg.replace(motion=True, history=1).validate()
+
+
+def test_separate_towers_keep_the_robot_s_actions_apart_from_the_human_s(tiny_cfg, fetchq):
+    """``separate_towers``: the actor is a human and a robot network; changing the human one moves the human's actions
+    and leaves the robot's; Co-GAIL's human tower still learns (only BC-GAIL's and PPO_BC's is frozen). Without it the
+    actor is one network whose every weight moves both agents' actions."""
+    from cogail_jax.algo import networks
+
+    D, Ah = fetchq.observation_size, fetchq.human_action_size
+    obs, z = jnp.ones((3, D)), jnp.zeros((3, tiny_cfg.code_dim))
+    for towers in (True, False):
+        cfg = tiny_cfg.replace(separate_towers=towers)
+        assert cfg.two_towers is towers and not cfg.freeze_human
+        actor = networks.make_networks(cfg, fetchq)["actor"]
+        p = actor.init(jax.random.PRNGKey(0), obs, z)
+        assert ({"human", "robot"} <= set(p["params"])) is towers
+        first = "human" if towers else next(k for k in p["params"] if k.startswith("MLP"))
+        moved = jax.tree.map(lambda x: x, p)
+        moved["params"][first] = jax.tree.map(lambda x: x + 0.1, p["params"][first])
+        (m0, _), (m1, _) = actor.apply(p, obs, z), actor.apply(moved, obs, z)
+        assert not np.allclose(m0[:, :Ah], m1[:, :Ah])
+        assert np.allclose(m0[:, Ah:], m1[:, Ah:]) is towers
+    assert tiny_cfg.replace(method="bc_gail").two_towers

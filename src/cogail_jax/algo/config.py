@@ -94,6 +94,10 @@ class TrainConfig:
     # discriminator also read s_t - s_{t-1} of what they read, in units of the demonstrations' per-step change (0 at
     # an episode's first step), so a partner who holds still reads the same wherever and however they hold the object
     motion: bool = False
+    # the co-policy's actor as two towers, one per agent, instead of one network with both agents' actions (our
+    # addition; BC-GAIL and PPO_BC always have two, their human tower frozen): what the robot learns is not shaped by
+    # fitting the human's actions, which depend on how the human holds the object
+    separate_towers: bool = False
     # discriminator
     disc_loss: str = "auto"  # "bce" | "lsgan" | "auto" (the task's default_config(), else lsgan)
     disc_lr: float = 3e-4
@@ -169,6 +173,10 @@ class TrainConfig:
     @property
     def bc_only(self) -> bool:  # no environment interaction, no discriminator
         return self.method == "bc_single"
+
+    @property
+    def two_towers(self) -> bool:  # the actor's human and robot towers are separate networks
+        return self.separate_towers or self.freeze_human
 
     @property
     def freeze_human(self) -> bool:  # BC-GAIL, PPO_BC: the human tower is trained by BC only, then frozen

@@ -27,7 +27,7 @@ class Actor(nn.Module):
 
     action_size: int
     init_log_std: float = -0.5
-    human_size: int = 0  # > 0: separate human and robot towers (BC-GAIL freezes the human one)
+    human_size: int = 0  # > 0: separate human and robot towers (config ``separate_towers``; BC-GAIL freezes the human one)
 
     @nn.compact
     def __call__(self, obs, z):
@@ -80,7 +80,7 @@ def disc_kind(cfg, env) -> str:
 def make_networks(cfg, env) -> dict[str, nn.Module]:
     """The four networks of a run (BC-GAIL's actor has separate human and robot towers)."""
     return {
-        "actor": Actor(env.action_size, cfg.init_log_std, env.human_action_size if cfg.freeze_human else 0),
+        "actor": Actor(env.action_size, cfg.init_log_std, env.human_action_size if cfg.two_towers else 0),
         "critic": Critic(),
         "psi": Psi(cfg.code_dim),
         "disc": Discriminator(squash=disc_kind(cfg, env) == "lsgan"),

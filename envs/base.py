@@ -45,7 +45,17 @@ with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints "Failed to 
     import mujoco.mjx  # noqa: F401
     from brax.envs.base import Env, State
 
-__all__ = ["CollabEnv", "State"]
+__all__ = ["CollabEnv", "State", "jitted"]
+
+
+def jitted(env: Env, name: str):
+    """``jax.jit(getattr(env, name))`` (e.g. ``step``, ``reset_from``), made once per env object and method: the
+    callers that step an env from the host (the collection table, its scripted players, ``cogail play``) share one
+    trace and compilation, where separate ``jax.jit`` wrappers of the same method trace and compile it each."""
+    fns = env.__dict__.setdefault("_jitted_fns", {})
+    if name not in fns:
+        fns[name] = jax.jit(getattr(env, name))
+    return fns[name]
 
 
 class CollabEnv(Env):

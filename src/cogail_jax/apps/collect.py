@@ -162,15 +162,15 @@ class Collector:
     """The shared episode, stepped at a fixed rate on its own thread; each finished episode is appended to ``out``."""
 
     def __init__(self, env, out: str | Path, settings: Settings, log=print):
-        from cogail_envs import get_task
+        from cogail_envs import get_task, jitted
 
         self.env, self.task, self.out, self.settings, self.log = env, get_task(env.name), Path(out), settings, log
         self.lock = threading.Condition()
         codes = {s: "".join(secrets.choice(CODE_ALPHABET) for _ in range(6)) if settings.lan else None for s in SEATS}
         self.seats = {s: Seat(s, codes[s]) for s in SEATS}
         self.rng = np.random.default_rng(settings.seed)
-        self._reset, self._step = jax.jit(env.reset_from), jax.jit(env.step)
-        self._classify = jax.jit(env.classify_strategy)
+        self._reset, self._step = jitted(env, "reset_from"), jitted(env, "step")
+        self._classify = jitted(env, "classify_strategy")
         self.saved, self.recorded = self._count_saved(), 0
         self.episode, self.frame_id, self.frame = 0, 0, ""
         self.request: str | None = None  # "ended" / "next" asked by a page, handled by the stepping thread
@@ -677,8 +677,8 @@ def scripted_actions(env, init, seed: int, steps: int, step_fn=None) -> tuple[np
     """What a scripted pair of people does from ``reset_from(init)``: the task's scripted team
     (``Team.act``, as ``cogail data`` makes demonstrations) played closed-loop in a copy of the episode for ``steps``
     steps; each agent's actions (steps, size). A task without a team: seeded random choices, each held 4 steps.
-    ``step_fn``: a jitted ``env.step`` to reuse (one compilation)."""
-    from cogail_envs import get_task
+    ``step_fn``: a jitted ``env.step`` to reuse (one compilation; by default the env's own, ``jitted``)."""
+    from cogail_envs import get_task, jitted
 
     team = get_task(env.name).team
     rng = np.random.default_rng(seed)
@@ -696,10 +696,9 @@ def scripted_actions(env, init, seed: int, steps: int, step_fn=None) -> tuple[np
     if "act" not in cache:
         cache["act"] = jax.jit(lambda ts, st, k: team.act(env, ts, st, k))
         cache["init"] = jax.jit(lambda k: team.init(env, k, env.uniform_mix(), 0)[0])
-        cache["reset"] = jax.jit(env.reset_from)
-    step = step_fn or cache.setdefault("step", jax.jit(env.step))
+    step = step_fn or jitted(env, "step")
     key = jax.random.PRNGKey(seed)
-    ts, state = cache["init"](key), cache["reset"](jnp.asarray(init, jnp.float32))
+    ts, state = cache["init"](key), jitted(env, "reset_from")(jnp.asarray(init, jnp.float32))
     acts = []
     for k in jax.random.split(jax.random.fold_in(key, 1), steps):
         ts, a = cache["act"](ts, state, k)

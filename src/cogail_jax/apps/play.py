@@ -125,12 +125,14 @@ class Game:
     appended to the trials file. Not thread-safe: call it from one thread."""
 
     def __init__(self, env, policies: list[Policy], trials: str | Path, max_steps: int | None = None, seed: int = 0):
+        from cogail_envs import jitted
+
         self.env, self.policies, self.trials = env, policies, Path(trials)
         self.max_steps = min(int(max_steps or env.max_episode_steps), env.max_episode_steps)
         self.rng = np.random.default_rng(seed)
         self.order: list[int] = []
         self.saved = self._count_saved()
-        self._reset = jax.jit(env.reset_from)
+        self._reset = jitted(env, "reset_from")
         self.new_trial()
 
     def _count_saved(self) -> int:

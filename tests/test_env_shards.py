@@ -24,7 +24,10 @@ CALLS = 2  # chunk calls of every run (updates_per_call updates each)
 # the training arrays' step count became an argument of the program (it was their length): a new digest
 # the rollout also carries the task's reward and the update reads task_reward (the field's presets; the fetchq
 # state after training is the same to the bit, measured on the CPU): a new digest
-ONE_SHARD_DIGEST = "eabfaf8b6c7603c1f7cf1014c212631c00281e510e237eb7c5d3948375b7249e"
+# the actor, critic and discriminator read what ``networks.policy_input`` gives (the observation taken from the
+# history; ``motion`` off: the same values, fetchq's parameters after BC and three chunk calls the same to the bit,
+# measured on the CPU): a new digest
+ONE_SHARD_DIGEST = "f54ab80e729fad60b1fd9d42956130009fef2231e2d9b9dfcb3c562ae158f0e5"
 # the collective primitives (JAX's names; also the ones a variant such as psum_invariant starts with)
 COLLECTIVES = ("all_gather", "psum", "pmax", "pmin", "ppermute", "all_to_all", "axis_index", "reduce_scatter")
 

@@ -9,6 +9,7 @@ def default_config() -> dict:
         total_steps=1_804_800, num_envs=64, unroll_length=94, updates_per_call=10, checkpoint_every=10,
         bc_steps=40_000, obs_std_floor=0.1, num_demos=480, train_varied=10, bc_coef=10.0, policy_ema=0.98,
         disc_loss="lsgan", multi_device="per_device", obs_frame="object", motion=True,
+        separate_towers=True,
     )
 
 

@@ -11,7 +11,7 @@ def default_config() -> dict:
         total_steps=10_000_000, num_envs=1000, unroll_length=10, updates_per_call=10, checkpoint_every=30,
         bc_steps=40_000, obs_std_floor=0.1, num_demos=1000, disc_instance_noise=True, policy_cooldown=400,
         bc_coef=10.0, policy_ema=0.995, train_varied=60, init_log_std=-2.3, bc_std=True, disc_loss="lsgan",
-        multi_device="per_device", obs_frame="object",
+        multi_device="per_device", obs_frame="object", separate_towers=True,
     )
 
 

@@ -173,6 +173,7 @@ class Collector:
         self._classify = jitted(env, "classify_strategy")
         self.saved, self.recorded = self._count_saved(), 0
         self.episode, self.frame_id, self.frame = 0, 0, ""
+        self.shown = (0, 0)  # (episode, step) of the frame the pages are shown: what their labels say
         self.request: str | None = None  # "ended" / "next" asked by a page, handled by the stepping thread
         self.stopping = threading.Event()
         self.ready = threading.Event()
@@ -266,8 +267,10 @@ class Collector:
                  f"({self.saved} episodes)")
 
     def _render(self) -> None:
-        self.frame = controls.png_data_url(controls.render_frame(self.env, self.state))
-        self.frame_id += 1
+        frame = controls.png_data_url(controls.render_frame(self.env, self.state))
+        with self.lock:  # the frame, its id and its episode and step change together for the pages' views
+            self.frame, self.shown = frame, (self.episode, len(self.obs))
+            self.frame_id += 1
 
     def warm_up(self) -> None:
         """Compile the step and render the first frame (stepping thread)."""
@@ -463,7 +466,7 @@ class Collector:
                     break
                 self.lock.wait(left)
             seat.last_seen = time.monotonic()
-            return {"status": self.status, "end": self.end, "episode": self.episode, "t": len(self.obs),
+            return {"status": self.status, "end": self.end, "episode": self.shown[0], "t": self.shown[1],
                     "max_steps": self.settings.max_steps, "saved": self.saved, "frame_id": self.frame_id,
                     "frame": self.frame, "you": seat.name, "applied": dict(self.applied),
                     "taken": {s: bool(self.seats[s].token) for s in SEATS},

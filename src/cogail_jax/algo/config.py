@@ -211,8 +211,8 @@ class TrainConfig:
         if self.obs_frame not in OBS_FRAMES:
             raise ConfigError(f"obs_frame must be one of {', '.join(OBS_FRAMES)}, got {self.obs_frame!r}")
         if self.motion and self.history < 2:
-            raise ConfigError(f"motion reads the change since the previous step from psi's history, which needs history "
-                              f">= 2, got {self.history}: set history=2 or more, or motion=false")
+            raise ConfigError(f"motion reads the change since the previous step from psi's history, which needs "
+                              f"history >= 2, got {self.history}: set history=2 or more, or motion=false")
         if not self.obs_std_floor > 0:
             raise ConfigError(f"obs_std_floor must be positive, got {self.obs_std_floor}")
         if self.multi_device not in ("auto", "shard_map", "per_device"):

@@ -27,7 +27,7 @@ class Actor(nn.Module):
 
     action_size: int
     init_log_std: float = -0.5
-    human_size: int = 0  # > 0: separate human and robot towers (config ``separate_towers``; BC-GAIL freezes the human one)
+    human_size: int = 0  # > 0: separate human and robot towers (``separate_towers``; BC-GAIL freezes the human one)
 
     @nn.compact
     def __call__(self, obs, z):
@@ -96,11 +96,12 @@ MOTION_CLIP = 5.0
 
 
 def policy_input(norm: dict, hist, back: int = 0):
-    """What the actor, the critic and the discriminator read (the last beside the actions) at the step ``back`` steps before the last of ``hist`` (..., K + 1, D raw
-    observations, the last the current one): the normalised observation and, where the normaliser has
-    ``motion_std`` (config ``motion``), its change since the step before in units of the demonstrations'
-    per-step change, clipped to +-``MOTION_CLIP`` (a history starts as copies of the first observation: no change; a
-    feature that jumps, a flag or a wrapped angle, or a policy's wild step, stays in range)."""
+    """What the actor, the critic and the discriminator read (the last beside the actions) at the step ``back``
+    steps before the last of ``hist`` (..., K + 1, D raw observations, the last the current one): the normalised
+    observation and, where the normaliser has ``motion_std`` (config ``motion``), its change since the step before
+    in units of the demonstrations' per-step change, clipped to +-``MOTION_CLIP`` (a history starts as copies of the
+    first observation: no change; a feature that jumps, a flag or a wrapped angle, or a policy's wild step, stays in
+    range)."""
     t = hist.shape[-2] - 1 - back
     x = normalize(norm, hist[..., t, :])
     if "motion_std" not in norm:
@@ -124,5 +125,5 @@ def gaussian_entropy(log_std):
     return jnp.sum(log_std + 0.5 * jnp.log(2 * jnp.pi * jnp.e), axis=-1)
 
 
-__all__ = ["Actor", "Critic", "Psi", "Discriminator", "make_networks", "disc_kind", "normalize", "policy_input", "history_input",
-           "gaussian_log_prob", "gaussian_entropy", "jax"]
+__all__ = ["Actor", "Critic", "Psi", "Discriminator", "make_networks", "disc_kind", "normalize", "policy_input",
+           "history_input", "gaussian_log_prob", "gaussian_entropy", "jax"]

@@ -17,7 +17,7 @@ help:
 	@echo "           [SEEDS=300,400,500] [BUDGET=paper|quick|2x] [RUN=dir] [EXTRA='--set FIELD=VALUE ...']"
 	@echo "make eval RUN=dir | make test | make demos TASK=... (the run's datasets) | make video RUN=dir | make bench"
 	@echo "make first-run [TASKS=fetchq] (cold, warm and new-config make train, timed; TASKS=fetchq,handover,seqmanip)"
-	@echo "make paper [TASKS=fetchq|overcooked (its five kitchens)] [METHODS=...] [MIXES=uniform,D1,D2] [GPUS=all] [JOBS_PER_GPU=1] [SHARD=i/n]"
+	@echo "make paper [TASKS=fetchq|overcooked (its five kitchens)] [METHODS=...] [MIXES=uniform,D1,D2] [GPUS=all] [JOBS_PER_GPU=1] [TASK_JOBS="handover=2 ..."] [SHARD=i/n]"
 	@echo "make paper-check | make paper-compare | make install [CPU=1] [DRY_RUN=1] | make clean (deletes runs/)"
 
 # overcooked-ai 1.1.0 only for the Overcooked trials it ships (Carroll et al. 2019), without the GUI and notebook
@@ -80,16 +80,19 @@ clean:
 
 # The paper's tables (Table 1 replay, Table 2 interpolation, Fig. 3) for TASKS x METHODS, 3 seeds each; the jobs run
 # one per GPU over GPUS (all visible ones by default; JOBS_PER_GPU=K: K side by side on each), the rest queued, each
-# task's datasets first; SHARD=i/n runs the i-th of n hosts' share.
+# task's datasets first; SHARD=i/n runs the i-th of n hosts' share; TASK_JOBS="handover=2 seqmanip=2": at most that
+# many of a task's jobs side by side on one GPU.
 TASKS ?= fetchq
 METHODS ?=
 MIXES ?= uniform
 GPUS ?= all
 JOBS_PER_GPU ?= 1
 SHARD ?=
+TASK_JOBS ?=
 paper: install
 	$(BIN)/python experiments/paper.py --tasks $(TASKS) $(if $(METHODS),--methods $(METHODS),) --mixes $(MIXES) --out results/paper \
-	  --gpus $(GPUS) --jobs-per-gpu $(JOBS_PER_GPU) $(if $(SHARD),--shard $(SHARD),)
+	  --gpus $(GPUS) --jobs-per-gpu $(JOBS_PER_GPU) $(if $(SHARD),--shard $(SHARD),) \
+	  $(foreach c,$(TASK_JOBS),--task-jobs-per-gpu $(c))
 
 # Which rows of the shipped tables were not trained from this checkout's code with the current settings.
 paper-check: install

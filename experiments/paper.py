@@ -311,28 +311,53 @@ def job_slots(gpus: list[str], per_gpu: int = 1) -> list[str]:
     return list(gpus) if per_gpu == 1 else [f"{g}:{k}" for k in range(per_gpu) for g in gpus]
 
 
+def task_caps(items: list[str]) -> dict[str, tuple[str, int]]:
+    """``--task-jobs-per-gpu TASK=K`` items as {task: (TASK, K)} for :func:`run_jobs`'s ``limit``: a task with
+    variants stands for all of them, which share its K."""
+    from cogail_envs import task_names
+
+    caps = {}
+    for item in items:
+        name, _, k = item.partition("=")
+        if not k.isdigit() or int(k) < 1:
+            raise SystemExit(f"--task-jobs-per-gpu {item}: give TASK=K with K 1 or more, e.g. handover=3")
+        if name not in task_names():
+            raise SystemExit(f"--task-jobs-per-gpu {item}: no task {name!r}; give one of {', '.join(task_names())}")
+        caps.update({t: (name, int(k)) for t in expand_tasks([name])})
+    return caps
+
+
 def slot_device(slot: str) -> str:
     """The GPU id (``CUDA_VISIBLE_DEVICES``) of a slot of :func:`job_slots`."""
     return slot.split(":")[0]
 
 
-def run_jobs(jobs: list, slots: list[str], launch, poll: float = 0.5, ready=None):
+def run_jobs(jobs: list, slots: list[str], launch, poll: float = 0.5, ready=None, limit=None):
     """Run ``jobs`` at most one per slot at a time, in order, each as ``launch(job, slot)`` (a process: ``poll()``
     None while it runs, else its exit code); yields ``(job, exit code)`` as each ends. ``ready(job)``: True when a
     queued job may start, False while it must wait (the first ready one starts first), None when it never can (it is
-    yielded with exit code None, not launched); without it every job is ready."""
+    yielded with exit code None, not launched); without it every job is ready. ``limit(job)``: ``(group, k)``, at
+    most k jobs of that group side by side on one GPU (:func:`slot_device`), or None for no limit."""
     queue, free, running = list(jobs), list(slots), {}
     ready = ready or (lambda job: True)
+    limit = limit or (lambda job: None)
+
+    def fits(job, slot):
+        lim = limit(job)
+        return lim is None or sum(slot_device(s) == slot_device(slot) and limit(j) is not None and limit(j)[0] == lim[0]
+                                  for s, (j, _) in running.items()) < lim[1]
+
     while queue or running:
         for job in [j for j in queue if ready(j) is None]:
             queue.remove(job)
             yield job, None
         while free:
-            job = next((j for j in queue if ready(j)), None)
-            if job is None:
+            pick = next(((j, s) for j in queue if ready(j) for s in free if fits(j, s)), None)
+            if pick is None:
                 break
+            job, slot = pick
             queue.remove(job)
-            slot = free.pop(0)
+            free.remove(slot)
             running[slot] = (job, launch(job, slot))
         if queue and not running and not any(ready(j) for j in queue):
             raise RuntimeError(f"jobs wait on nothing that runs: {queue}")
@@ -1124,6 +1149,10 @@ def main(argv=None) -> int:
     p.add_argument("--jobs-per-gpu", type=int, default=1, metavar="K",
                    help="run K jobs side by side on each GPU (default 1); they share its memory and give the figures "
                         "of one job at a time, in less time where one job leaves the GPU idle")
+    p.add_argument("--task-jobs-per-gpu", action="append", default=[], metavar="TASK=K",
+                   help="at most K of TASK's jobs (a task with variants: of all its variants') side by side on one "
+                        "GPU, below --jobs-per-gpu, e.g. handover=3 where its evaluations would not fit in memory "
+                        "more times over; repeat for several tasks")
     p.add_argument("--data-only", action="store_true",
                    help="train nothing: make every dataset the grid's jobs need, as each job would (the runs' sets "
                         "and the validation split's varied humans)")
@@ -1208,6 +1237,7 @@ def main(argv=None) -> int:
                     continue
                 todo.append((t, m, mix))
     todo = shard_jobs(todo, a.shard)
+    caps = task_caps(a.task_jobs_per_gpu)
     gpus = gpu_slots(a.gpus)
     slots = job_slots(gpus, a.jobs_per_gpu) if gpus != ["-"] else gpus
     failed = []
@@ -1256,7 +1286,7 @@ def main(argv=None) -> int:
             return subprocess.Popen(argv, stdout=log.open("w"), stderr=subprocess.STDOUT,
                                     env={**os.environ, "CUDA_VISIBLE_DEVICES": slot_device(slot)})
 
-        for job, code in run_jobs(queue, slots, launch, ready=ready):
+        for job, code in run_jobs(queue, slots, launch, ready=ready, limit=lambda job: caps.get(job[0])):
             folder, log = where(job)
             if job[1] == CROSS:
                 got = folder / "crossplay.json"

@@ -534,6 +534,43 @@ def test_jobs_wait_for_what_they_need_and_skip_what_cannot_run():
     assert ("y", None) in ended and "y" not in launched and ("data-bad", 1) in ended
 
 
+def test_a_task_s_jobs_are_capped_per_gpu():
+    """``limit``: at most k jobs of a group side by side on one GPU, other jobs filling the free slots meanwhile
+    (the first queued job that fits a free slot starts); ``task_caps`` reads ``--task-jobs-per-gpu``."""
+    class Proc:
+        def __init__(self):
+            self.left = 3
+
+        def poll(self):
+            self.left -= 1
+            return None if self.left > 0 else 0
+
+    running, most, order = {}, {}, []
+
+    def launch(job, slot):
+        running[job] = paper.slot_device(slot)
+        order.append(job)
+        for gpu in set(running.values()):
+            n = sum(j.startswith("mjx") and g == gpu for j, g in running.items())
+            most[gpu] = max(most.get(gpu, 0), n)
+        return Proc()
+
+    jobs = ["mjx1", "mjx2", "mjx3", "mjx4", "mjx5", "f1", "f2", "f3"]
+    limit = lambda job: ("mjx", 2) if job.startswith("mjx") else None  # noqa: E731
+    for job, code in paper.run_jobs(jobs, paper.job_slots(["0", "1"], 3), launch, poll=0, limit=limit):
+        running.pop(job)
+        assert code == 0
+    assert most == {"0": 2, "1": 2}  # two per GPU, never three, on both GPUs
+    assert order[:6] == ["mjx1", "mjx2", "mjx3", "mjx4", "f1", "f2"]  # the capped jobs let the others start
+    assert sorted(order) == sorted(jobs)
+    caps = paper.task_caps(["handover=3", "overcooked=4"])
+    assert caps["handover"] == ("handover", 3) and caps["overcooked_coordination_ring"] == ("overcooked", 4)
+    with pytest.raises(SystemExit, match="no task 'nope'"):
+        paper.task_caps(["nope=2"])
+    with pytest.raises(SystemExit, match="TASK=K"):
+        paper.task_caps(["handover"])
+
+
 def test_data_only_makes_every_jobs_datasets_and_trains_nothing(tmp_path, monkeypatch):
     """``--data-only`` (a sweep's data job) makes the datasets of every task x method x mixture's config and the
     validation split's varied humans of each task and mixture, and trains nothing."""

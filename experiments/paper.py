@@ -22,8 +22,8 @@ trains nothing and only rewrites the tables (and the README block) from ``<out>/
 Jobs (one per task x method x mixture) run one per GPU: with several GPUs visible (``--gpus all``, the
 default, or ``--gpus N``) each job is a process of its own on one GPU (``CUDA_VISIBLE_DEVICES``), at most one per
 GPU at a time (``--jobs-per-gpu K``: K; the jobs share the GPU's memory, and their figures are those of one job at a
-time) and the rest queued, its results in ``<out>/jobs/<task>-<method>-<mix>/`` and merged into
-``<out>/paper.json`` as it ends. Each task's datasets are made first, by one process per task
+time; ``--task-jobs-per-gpu TASK=K``: at most K of TASK's at once on one GPU) and the rest queued, its results in
+``<out>/jobs/<task>-<method>-<mix>/`` and merged into ``<out>/paper.json`` as it ends. Each task's datasets are made first, by one process per task
 (``--data-only``; log ``<out>/jobs/<task>-data.log``), so that jobs side by side never write the same file; a task's
 jobs start when its datasets are ready. On a task learned from people, the field's cross-play of its robots is a job of
 its own too (``--crossplay`` on the task's rows, log ``<out>/jobs/<task>-cross-play.log``), started once the task's last

@@ -17,7 +17,7 @@ help:
 	@echo "           [SEEDS=300,400,500] [BUDGET=paper|quick|2x] [RUN=dir] [EXTRA='--set FIELD=VALUE ...']"
 	@echo "make eval RUN=dir | make test | make demos TASK=... (the run's datasets) | make video RUN=dir | make bench"
 	@echo "make first-run [TASKS=fetchq] (cold, warm and new-config make train, timed; TASKS=fetchq,handover,seqmanip)"
-	@echo "make paper [TASKS=fetchq|overcooked (its five kitchens)] [METHODS=...] [MIXES=uniform,D1,D2] [GPUS=all] [JOBS_PER_GPU=1] [TASK_JOBS="handover=2 ..."] [SHARD=i/n]"
+	@echo "make paper [TASKS=fetchq|overcooked (its five kitchens)] [METHODS=...] [MIXES=uniform,D1,D2] [GPUS=all] [JOBS_PER_GPU=1] [TASK_JOBS='handover=2 ...'] [SHARD=i/n]"
 	@echo "make paper-check | make paper-compare | make install [CPU=1] [DRY_RUN=1] | make clean (deletes runs/)"
 
 # overcooked-ai 1.1.0 only for the Overcooked trials it ships (Carroll et al. 2019), without the GUI and notebook

@@ -39,6 +39,8 @@ def _run_rollouts(run: Path, num: int, steps: int | None):
     from ..data import io as data
     from ..data import manifest, sets
 
+    if not (run / "config.json").exists():
+        raise runs.RunError(f"{run} is not a run directory (no config.json): pass the --run of a training run")
     cfg = TrainConfig.load(run / "config.json")
     s = runs.build(cfg, need_heldout=False, run_dir=run, need_demos=False)  # no demonstration file is needed
     env = s.env

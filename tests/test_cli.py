@@ -41,6 +41,7 @@ def test_demos_command(tmp_path):
     (["train", "--task", "fetchq", "--run", "RUN", "--resume"], "cannot resume"),
     (["eval", "--run", "RUN"], "not a run directory"),
     (["video", "--run", "RUN", "--out", "MISSING.gif"], "not a run directory"),
+    (["video", "--task", "fetchq", "--out", "MISSING.txt"], "a video is written as .gif or .mp4"),
     (["train", "--task", "fetchq", "--run", "RUN", "--config", "MISSING.json"], "config file"),
     (["train", "--task", "fetchq", "--run", "RUN", "--set", "nope=1"], "unknown config field"),
     (["train", "--task", "fetchq", "--run", "RUN", "--set", "multi_device=mesh"], "multi_device must be auto, shard_map or per_device"),

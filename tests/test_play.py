@@ -177,7 +177,7 @@ def _free_port():
         return s.getsockname()[1]
 
 
-@pytest.mark.parametrize("case", ["unknown run", "other task", "port in use"])
+@pytest.mark.parametrize("case", ["unknown run", "other task", "port in use", "port out of range"])
 def test_bad_input_is_one_clear_sentence(case, run_dir, tmp_path, capsys):
     from cogail_jax.algo.config import TrainConfig
 
@@ -189,6 +189,8 @@ def test_bad_input_is_one_clear_sentence(case, run_dir, tmp_path, capsys):
         other.mkdir()
         (other / "config.json").write_text(TrainConfig(task="handover").to_json())
         args, needle = ["--task", "fetchq", "--run", str(other)], "holds a handover checkpoint, not fetchq"
+    elif case == "port out of range":
+        args, needle = ["--run", str(run_dir), "--port", "70000"], "port 70000 is out of range: pass --port"
     else:
         holder = socket.socket()
         holder.bind(("127.0.0.1", _free_port()))

@@ -124,6 +124,8 @@ def bind(port: int, handler, host: str = HOST) -> ThreadingHTTPServer:
     """Listen on host:port (0: any free port); ``RunError`` with the fix when the port is taken."""
     try:
         server = ThreadingHTTPServer((host, port), handler)
+    except OverflowError:
+        raise RunError(f"port {port} is out of range: pass --port between 1 and 65535 (or 0 to pick a free one)")
     except OSError as e:
         if e.errno == errno.EADDRINUSE:
             raise RunError(f"port {port} is in use: pass --port N with a free port (or --port 0 to pick one)")

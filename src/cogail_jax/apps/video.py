@@ -122,7 +122,11 @@ def write_video(task: str, out: str | Path, run: str | Path | None = None, num: 
 
     import cogail_envs
 
+    from .runs import RunError
+
     out = Path(out)
+    if out.suffix.lower() not in (".gif", ".mp4"):
+        raise RunError(f"--out {out}: a video is written as .gif or .mp4: name the file so")
     out.parent.mkdir(parents=True, exist_ok=True)
     if run is None:
         env = cogail_envs.make_env(task)
@@ -147,7 +151,7 @@ def write_video(task: str, out: str | Path, run: str | Path | None = None, num: 
     else:  # interpolation rollouts on top, replays below
         env, rows = _run_rollouts(Path(run), num, steps)
         frames = [np.concatenate(r, axis=0) for r in zip(*(_frames(env, st, num, T) for st, T in rows))]
-    if out.suffix == ".mp4":
+    if out.suffix.lower() == ".mp4":
         imageio.mimwrite(out, frames, fps=fps, macro_block_size=1)
     else:
         imageio.mimwrite(out, frames, duration=1000 / fps, loop=0)

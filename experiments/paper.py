@@ -327,6 +327,36 @@ def task_caps(items: list[str]) -> dict[str, tuple[str, int]]:
     return caps
 
 
+def check_tasks(tasks: list[str]) -> None:
+    """``SystemExit`` with one sentence naming the fix if a task of ``--tasks`` does not exist."""
+    from cogail_envs import UnknownTaskError, get_task
+
+    for t in tasks:
+        try:
+            get_task(t)
+        except UnknownTaskError as e:
+            raise SystemExit(f"--tasks: {e}")
+
+
+def check_grid(tasks: list[str], methods: list[str], seeds: str, mixes: str) -> list[int]:
+    """The grid's methods, seeds and fetchq mixtures checked before anything runs: the seeds as integers, or
+    ``SystemExit`` with one sentence naming the option and the fix."""
+    from cogail_envs import get_task
+    from cogail_jax.algo.config import METHODS
+
+    if bad := [m for m in methods if m not in METHODS]:
+        raise SystemExit(f"--methods: no method {bad[0]!r}; give comma-separated names of {', '.join(METHODS)}")
+    try:
+        seeds_ = [int(x) for x in seeds.split(",")]
+    except ValueError:
+        raise SystemExit(f"--seeds {seeds}: give comma-separated integers, e.g. 300,400,500")
+    if "fetchq" in tasks:
+        named = ("uniform", *get_task("fetchq").mixtures)
+        if bad := [m for m in mixes.split(",") if m not in named]:
+            raise SystemExit(f"--mixes: no fetchq mixture {bad[0]!r}; give comma-separated names of {', '.join(named)}")
+    return seeds_
+
+
 def slot_device(slot: str) -> str:
     """The GPU id (``CUDA_VISIBLE_DEVICES``) of a slot of :func:`job_slots`."""
     return slot.split(":")[0]
@@ -1174,11 +1204,14 @@ def main(argv=None) -> int:
     enable_compile_cache(not a.no_compile_cache)
     extra = parse_sets(a.set)
     out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
     readme = Path(a.readme) if a.readme else None
     tasks = a.tasks.split(",") if a.no_variants else expand_tasks(a.tasks.split(","))
+    if a.jobs_per_gpu < 1:
+        raise SystemExit(f"--jobs-per-gpu {a.jobs_per_gpu}: give 1 or more")
+    check_tasks(tasks)
     methods = a.methods.split(",") if a.methods else default_methods(tasks)
-    seeds = [int(s) for s in a.seeds.split(",")]
+    seeds = check_grid(tasks, methods, a.seeds, a.mixes)
+    out.mkdir(parents=True, exist_ok=True)
     mixes_of = lambda t: a.mixes.split(",") if t == "fetchq" else ["uniform"]  # noqa: E731
     if a.data_only:
         make_data(tasks, methods, mixes_of, seeds, extra)

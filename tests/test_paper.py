@@ -479,6 +479,21 @@ def test_shard_and_gpu_slots():
         paper.job_slots(["0"], 0)
 
 
+@pytest.mark.parametrize("args,needle", [
+    (["--tasks", "nope"], "--tasks: unknown task 'nope'"),
+    (["--methods", "cogail,nope"], "--methods: no method 'nope'"),
+    (["--seeds", "1,a"], "--seeds 1,a: give comma-separated integers"),
+    (["--mixes", "uniform,D9"], "--mixes: no fetchq mixture 'D9'"),
+    (["--jobs-per-gpu", "0"], "--jobs-per-gpu 0: give 1 or more"),
+])
+def test_a_grid_s_bad_options_end_before_anything_runs(args, needle, tmp_path):
+    out = tmp_path / "grid"
+    with pytest.raises(SystemExit) as e:
+        paper.main([*args, "--out", str(out)])
+    assert str(e.value).startswith(needle) and "\n" not in str(e.value)
+    assert not out.exists()  # nothing made, nothing started
+
+
 def test_jobs_run_one_per_slot_and_queue():
     class Proc:
         def __init__(self, job, slot, polls):

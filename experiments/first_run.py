@@ -121,12 +121,32 @@ def main(argv=None) -> None:
                    help="keep --out's cache and data of an earlier invocation (to run the later cases on their own)")
     a = p.parse_args(argv)
     out = Path(a.out).absolute()
+    tasks = [t for t in a.tasks.split(",") if t]
+    cases = tuple(a.cases.split(","))
+    if not tasks:
+        raise SystemExit("--tasks is empty: give comma-separated task names, e.g. fetchq,handover")
+    from cogail_envs import UnknownTaskError, get_task
+
+    for t in tasks:
+        try:
+            get_task(t)
+        except UnknownTaskError as e:
+            raise SystemExit(f"--tasks: {e}")
+    if bad := [c for c in cases if c not in ("cold", "warm", "new-config")]:
+        raise SystemExit(f"--cases: no case {bad[0]!r}; give comma-separated cold, warm, new-config")
+    if out.exists() and not out.is_dir():
+        raise SystemExit(f"--out {out} is a file: give a folder")
+    mine = out / ".first_run"  # what this script made; it never deletes a folder it did not make
+    if not a.keep and not mine.exists() and any((out / d).exists() for d in ("cache", "data")):
+        raise SystemExit(f"--out {out} holds a cache/ or data/ that this script did not make: give a new folder "
+                         "(nothing there is deleted)")
     for d in ("cache", "data") if not a.keep else ():  # cold means cold: nothing compiled or made before
         shutil.rmtree(out / d, ignore_errors=True)
     out.mkdir(parents=True, exist_ok=True)
+    mine.touch()
     rows = []
-    for task in [t for t in a.tasks.split(",") if t]:
-        rows += run_task(task, out, a.seeds, a.budget, tuple(a.cases.split(",")))
+    for task in tasks:
+        rows += run_task(task, out, a.seeds, a.budget, cases)
         (out / "first_run.json").write_text(json.dumps(rows, indent=1))
     from cogail_jax.apps.bench import phases_report
 

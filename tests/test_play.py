@@ -177,7 +177,8 @@ def _free_port():
         return s.getsockname()[1]
 
 
-@pytest.mark.parametrize("case", ["unknown run", "other task", "port in use", "port out of range"])
+@pytest.mark.parametrize("case", ["unknown run", "other task", "port in use", "port out of range", "hz", "seed",
+                                  "trials are the run's test split", "trials are a folder"])
 def test_bad_input_is_one_clear_sentence(case, run_dir, tmp_path, capsys):
     from cogail_jax.algo.config import TrainConfig
 
@@ -189,6 +190,15 @@ def test_bad_input_is_one_clear_sentence(case, run_dir, tmp_path, capsys):
         other.mkdir()
         (other / "config.json").write_text(TrainConfig(task="handover").to_json())
         args, needle = ["--task", "fetchq", "--run", str(other)], "holds a handover checkpoint, not fetchq"
+    elif case == "hz":
+        args, needle = ["--run", str(run_dir), "--hz", "-1"], "--hz -1 is not a usable number of steps per second"
+    elif case == "seed":
+        args, needle = ["--run", str(run_dir), "--seed", "-1"], "--seed -1: pass 0 or more"
+    elif case == "trials are the run's test split":  # people's trials appended to it would change the run's data
+        split = run_dir.parent / "heldout.hdf5"
+        args, needle = ["--run", str(run_dir), "--trials", str(split)], "is a dataset the run"
+    elif case == "trials are a folder":
+        args, needle = ["--run", str(run_dir), "--trials", str(tmp_path)], "is a folder: pass a file"
     elif case == "port out of range":
         args, needle = ["--run", str(run_dir), "--port", "70000"], "port 70000 is out of range: pass --port"
     else:

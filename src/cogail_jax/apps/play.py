@@ -16,6 +16,8 @@ threads only parse requests and wait for it.
 from __future__ import annotations
 
 import json
+import math
+import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -310,6 +312,37 @@ def bind(port: int) -> ThreadingHTTPServer:
     return controls.bind(port, Handler)
 
 
+def check_trials_file(trials: Path, runs, cfgs) -> None:
+    """``RunError`` naming the fix if people's trials cannot be appended to ``trials``: a folder there, a folder
+    it cannot be written in, or a file a run trains or is evaluated on (its config's files and its data.json's
+    sets), which the trials would change."""
+    if trials.is_dir():
+        raise RunError(f"--trials {trials} is a folder: pass a file, e.g. {trials / 'trials.hdf5'}")
+    parent = trials.parent if str(trials.parent) else Path(".")
+    if not parent.is_dir() or not os.access(parent, os.W_OK):
+        raise RunError(f"--trials {trials}: cannot write in {parent}: pass a file in a folder you can write")
+
+    def paths(x):
+        if isinstance(x, dict):
+            for k, v in x.items():
+                yield from ([v] if k == "path" and isinstance(v, str) else paths(v))
+        elif isinstance(x, list):
+            for v in x:
+                yield from paths(v)
+
+    target = trials.resolve()
+    for r, cfg in zip(runs, cfgs):
+        manifest = Path(r) / "data.json"
+        try:
+            used = list(paths(json.loads(manifest.read_text()))) if manifest.is_file() else []
+        except (OSError, json.JSONDecodeError):
+            used = []
+        used += [f for f in (cfg.demos, cfg.heldout, cfg.validation) if f]
+        if any(Path(p).resolve() == target for p in used):
+            raise RunError(f"--trials {trials} is a dataset the run {r} trains or is evaluated on; the trials would "
+                           "change it: pass another file")
+
+
 def open_study(runs: list[str | Path], task: str | None = None, port: int = 8765, trials: str | Path | None = None,
                  checkpoint: str = "best", max_steps: int | None = None, hz: float | None = None, seed: int = 0,
                  log=print) -> ThreadingHTTPServer:
@@ -327,7 +360,12 @@ def open_study(runs: list[str | Path], task: str | None = None, port: int = 8765
             raise RunError(f"{r} holds a {c.task} checkpoint but {runs[0]} a {task} one: play one task at a time")
     env = cogail_envs.make_env(task)
     hz = float(hz or cogail_envs.get_task(task).play_hz)
+    if not math.isfinite(hz) or not 0 < hz <= 240:
+        raise RunError(f"--hz {hz:g} is not a usable number of steps per second: pass one above 0, at most 240")
+    if seed < 0:
+        raise RunError(f"--seed {seed}: pass 0 or more")
     trials = Path(trials) if trials else Path(runs[0]) / "trials.hdf5"
+    check_trials_file(trials, runs, cfgs)
     data.check_appendable(trials, env)
     server = bind(port)
     try:

@@ -42,12 +42,15 @@ def test_demos_command(tmp_path):
     (["eval", "--run", "RUN"], "not a run directory"),
     (["video", "--run", "RUN", "--out", "MISSING.gif"], "not a run directory"),
     (["video", "--task", "fetchq", "--out", "MISSING.txt"], "a video is written as .gif or .mp4"),
+    (["video", "--task", "fetchq", "--out", "DIR.gif"], "is a folder: pass a file name"),
     (["train", "--task", "fetchq", "--run", "RUN", "--config", "MISSING.json"], "config file"),
     (["train", "--task", "fetchq", "--run", "RUN", "--set", "nope=1"], "unknown config field"),
     (["train", "--task", "fetchq", "--run", "RUN", "--set", "multi_device=mesh"], "multi_device must be auto, shard_map or per_device"),
 ])
 def test_user_errors_are_one_clear_line(args, needle, tmp_path, capsys):
     args = [a.replace("RUN", str(tmp_path / "run")).replace("MISSING", str(tmp_path / "missing")) for a in args]
+    (tmp_path / "DIR.gif").mkdir()
+    args = [str(tmp_path / a) if a == "DIR.gif" else a for a in args]
     code, err = in_process(args, capsys)  # the command's own process: test_the_command_answers_in_one_line
     assert code == 2
     assert needle in err and "Traceback" not in err

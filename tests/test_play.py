@@ -42,6 +42,12 @@ def test_video_of_a_run_needs_no_demonstrations(run_dir, tmp_path, capsys):
     assert imageio.mimread(out)[0].shape == (256, 512, 3)
 
 
+def test_video_of_a_run_of_another_task_is_refused(run_dir, tmp_path, capsys):
+    assert cli.main(["video", "--task", "handover", "--run", str(run_dir), "--out", str(tmp_path / "v.gif")]) == 2
+    err = capsys.readouterr().err
+    assert "holds a fetchq checkpoint, not handover" in err and len(err.strip().splitlines()) == 1
+
+
 @pytest.fixture(scope="module")
 def server(run_dir):
     trials = run_dir.parent / "trials.hdf5"

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import jax
@@ -28,7 +29,7 @@ def _rollout_states(env, policy, init_states, T):
     return states
 
 
-def _run_rollouts(run: Path, num: int, steps: int | None):
+def _run_rollouts(run: Path, num: int, steps: int | None, task: str | None = None):
     """(env, [(interpolation states, T), (replay states, T)]) for a trained run; the replay row only where the
     run's test split is on disk."""
     from ..eval import rollouts
@@ -42,6 +43,8 @@ def _run_rollouts(run: Path, num: int, steps: int | None):
     if not (run / "config.json").exists():
         raise runs.RunError(f"{run} is not a run directory (no config.json): pass the --run of a training run")
     cfg = TrainConfig.load(run / "config.json")
+    if task and task != cfg.task:
+        raise runs.RunError(f"{run} holds a {cfg.task} checkpoint, not {task}: drop --task or pass a {task} run")
     s = runs.build(cfg, need_heldout=False, run_dir=run, need_demos=False)  # no demonstration file is needed
     env = s.env
     store = runs.Policies(run, s)
@@ -127,7 +130,14 @@ def write_video(task: str, out: str | Path, run: str | Path | None = None, num: 
     out = Path(out)
     if out.suffix.lower() not in (".gif", ".mp4"):
         raise RunError(f"--out {out}: a video is written as .gif or .mp4: name the file so")
-    out.parent.mkdir(parents=True, exist_ok=True)
+    if out.is_dir():
+        raise RunError(f"--out {out} is a folder: pass a file name, e.g. {out / 'rollouts.gif'}")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise RunError(f"--out {out}: cannot make its folder ({e.strerror}): pass a path you can write")
+    if not os.access(out.parent, os.W_OK):
+        raise RunError(f"--out {out}: cannot write in {out.parent}: pass a path you can write")
     if run is None:
         env = cogail_envs.make_env(task)
         scripted = cogail_envs.team_of(env)
@@ -149,7 +159,7 @@ def write_video(task: str, out: str | Path, run: str | Path | None = None, num: 
                                                         jax.random.split(jax.random.PRNGKey(1), T)))(states0, team)
         frames = _frames(env, states, num, T)
     else:  # interpolation rollouts on top, replays below
-        env, rows = _run_rollouts(Path(run), num, steps)
+        env, rows = _run_rollouts(Path(run), num, steps, task)
         frames = [np.concatenate(r, axis=0) for r in zip(*(_frames(env, st, num, T) for st, T in rows))]
     if out.suffix.lower() == ".mp4":
         imageio.mimwrite(out, frames, fps=fps, macro_block_size=1)

@@ -19,10 +19,36 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import math
+import os
 import sys
 import time
 import types
 from pathlib import Path
+
+
+def count(s: str) -> int:
+    """An argparse ``type``: a whole number of 1 or more."""
+    try:
+        n = int(s)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"give a whole number of 1 or more, not {s!r}")
+    return n
+
+
+def check_out(p: argparse.ArgumentParser, opt: str, path: Path) -> None:
+    """``p.error`` unless ``path`` is a file this process can write (its folder may still have to be made)."""
+    if path.is_dir():
+        p.error(f"{opt} {path} is a folder: give a file name, e.g. {path / 'ippo.json'}")
+    folder = path.absolute().parent
+    while not folder.exists():
+        folder = folder.parent
+    if not folder.is_dir():
+        p.error(f"{opt} {path}: {folder} is a file, not a folder: give a path you can write")
+    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        p.error(f"{opt} {path}: cannot write there: give a path you can write")
 
 
 def _stand_ins() -> None:
@@ -81,19 +107,48 @@ def main(argv=None) -> int:
     p.add_argument("--config", type=Path, default=None,
                    help="its YAML config (default: config/ippo_ff_overcooked.yaml beside the script)")
     p.add_argument("--layout", default="cramped_room", help="the kitchen (JaxMARL's overcooked_layouts name)")
-    p.add_argument("--seeds", type=int, default=20, help="seeds vmapped in one call (the script's main: 20)")
+    p.add_argument("--seeds", type=count, default=20, help="seeds vmapped in one call (the script's main: 20)")
     p.add_argument("--total-steps", type=float, default=1e6, help="TOTAL_TIMESTEPS per seed (the config: 5e6)")
     p.add_argument("--out", type=Path, default=None, help="write the figures here as JSON")
     a = p.parse_args(argv)
-    if not a.script.is_file():
-        raise SystemExit(f"{a.script} does not exist: pass the path of JaxMARL's baselines/IPPO/ippo_ff_overcooked.py.")
+    if not a.script.is_file() or a.script.suffix != ".py":
+        p.error(f"--script {a.script} is not a Python file: pass the path of JaxMARL's "
+                "baselines/IPPO/ippo_ff_overcooked.py")
+    config_file = a.config or a.script.parent / "config" / "ippo_ff_overcooked.yaml"
+    if not config_file.is_file():
+        which = f"--config {config_file}" if a.config else f"--config: {config_file}, beside --script,"
+        p.error(f"{which} is not a file: pass --config, the path of JaxMARL's "
+                "baselines/IPPO/config/ippo_ff_overcooked.yaml")
+    try:
+        config = _config(config_file)
+    except Exception as e:  # noqa: BLE001 -- YAML's errors, a file that is not text
+        p.error(f"--config {config_file} cannot be read as YAML ({type(e).__name__}): pass the script's "
+                "ippo_ff_overcooked.yaml")
+    need = ("NUM_ENVS", "NUM_STEPS", "ENV_KWARGS")
+    if not isinstance(config, dict) or not all(k in config for k in need) or not isinstance(config["ENV_KWARGS"], dict):
+        p.error(f"--config {config_file} is not the script's kind of config (no {', '.join(need)}): pass "
+                "ippo_ff_overcooked.yaml")
+    one_update = int(config["NUM_ENVS"] * config["NUM_STEPS"])
+    if not math.isfinite(a.total_steps) or a.total_steps < one_update:
+        p.error(f"--total-steps {a.total_steps:g}: give at least one update's steps, {one_update} (NUM_ENVS x "
+                f"NUM_STEPS of {config_file.name})")
+    if a.out is not None:
+        check_out(p, "--out", a.out)
     _stand_ins()
     import jax
 
     spec = importlib.util.spec_from_file_location("ippo_ff_overcooked", a.script)
     mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    config = _config(a.config or a.script.parent / "config" / "ippo_ff_overcooked.yaml")
+    try:
+        spec.loader.exec_module(mod)
+    except (SyntaxError, ImportError) as e:
+        p.error(f"--script {a.script} cannot be loaded ({type(e).__name__}: {str(e).splitlines()[0]}): pass JaxMARL's "
+                "baselines/IPPO/ippo_ff_overcooked.py, with jaxmarl installed")
+    if not all(hasattr(mod, n) for n in ("make_train", "overcooked_layouts")):
+        p.error(f"--script {a.script} has no make_train and overcooked_layouts: pass JaxMARL's "
+                "baselines/IPPO/ippo_ff_overcooked.py")
+    if a.layout not in mod.overcooked_layouts:
+        p.error(f"--layout {a.layout}: no such kitchen; give one of {', '.join(mod.overcooked_layouts)}")
     config["ENV_KWARGS"]["layout"] = mod.overcooked_layouts[a.layout]
     config["TOTAL_TIMESTEPS"] = float(a.total_steps)
     train = jax.jit(jax.vmap(mod.make_train(dict(config))))
@@ -114,6 +169,7 @@ def main(argv=None) -> int:
            "device": jax.devices()[0].device_kind}
     print(json.dumps(res, indent=1))
     if a.out:
+        a.out.parent.mkdir(parents=True, exist_ok=True)
         a.out.write_text(json.dumps(res, indent=1) + "\n")
     return 0
 

@@ -24,6 +24,31 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 
+def count(s: str) -> int:
+    """An argparse ``type``: a whole number of 1 or more."""
+    try:
+        n = int(s)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"give a whole number of 1 or more, not {s!r}")
+    return n
+
+
+def check_out(p: argparse.ArgumentParser, opt: str, path: str) -> None:
+    """``p.error`` unless ``path`` is a file this process can write (its folder may still have to be made)."""
+    path = Path(path)
+    if path.is_dir():
+        p.error(f"{opt} {path} is a folder: give a file name, e.g. {path / 'bench.hdf5'}")
+    folder = path.absolute().parent
+    while not folder.exists():
+        folder = folder.parent
+    if not folder.is_dir():
+        p.error(f"{opt} {path}: {folder} is a file, not a folder: give a path you can write")
+    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        p.error(f"{opt} {path}: cannot write there: give a path you can write")
+
+
 def client_loop(client, keys_cycle, steps: int, every: int, hz: float, out: dict) -> None:
     """Read frames until ``steps`` steps have been shown, while a second thread presses the next key at random times
     (every ``every`` steps on average, at any phase of the step clock, as a person would)."""
@@ -67,9 +92,9 @@ def client_loop(client, keys_cycle, steps: int, every: int, hz: float, out: dict
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--task", default="fetchq")
-    p.add_argument("--steps", type=int, default=300, help="steps to measure (after warm-up)")
+    p.add_argument("--steps", type=count, default=300, help="steps to measure (after warm-up)")
     p.add_argument("--hz", type=float, default=None, help="steps per second (default: the task's)")
-    p.add_argument("--every", type=int, default=3, help="frames between key presses")
+    p.add_argument("--every", type=count, default=3, help="frames between key presses")
     p.add_argument("--url", default=None, help="a running `cogail collect` (default: serve one here)")
     p.add_argument("--code-human", default=None)
     p.add_argument("--code-robot", default=None)
@@ -77,6 +102,19 @@ def main(argv=None) -> int:
     p.add_argument("--no-opengl", action="store_true",
                    help="draw an MJX task's frames with the fallback used on machines without OpenGL")
     a = p.parse_args(argv)
+    if a.url is not None:
+        if not a.url.startswith(("http://", "https://")):
+            p.error(f"--url {a.url}: give the table's address, e.g. http://127.0.0.1:8766")
+        if given := [o for o, v in (("--out", a.out), ("--hz", a.hz)) if v is not None]:
+            p.error(f"{given[0]}: the table at --url records and paces its own episodes: drop {given[0]} or --url")
+    elif a.out is not None:
+        check_out(p, "--out", a.out)
+    import cogail_envs
+
+    try:
+        cogail_envs.get_task(a.task)
+    except cogail_envs.UnknownTaskError as e:
+        p.error(f"--task: {e}")
     if a.no_opengl:
         from cogail_envs.mjx_common import FrameRenderer
 
@@ -84,14 +122,18 @@ def main(argv=None) -> int:
             raise RuntimeError("no OpenGL")
         FrameRenderer._get = no_gl
 
-    import cogail_envs
     from cogail_jax.apps import collect
+    from cogail_jax.apps.runs import RunError
+    from cogail_jax.data.io import DatasetError
 
     srv = None
     if a.url is None:
         out = a.out or os.path.join(tempfile.mkdtemp(prefix="collect-bench-"), "bench.hdf5")
         t0 = time.perf_counter()
-        srv = collect.open_table(a.task, out=out, port=0, hz=a.hz, gap=0.0, log=lambda *x: None)
+        try:  # its checks of --out and --hz come before it compiles
+            srv = collect.open_table(a.task, out=out, port=0, hz=a.hz, gap=0.0, log=lambda *x: None)
+        except (RunError, DatasetError) as e:
+            p.error(str(e) if str(e).startswith("--") else f"--out: {e}")
         print(f"compiled and warmed up in {time.perf_counter() - t0:.1f} s")
         threading.Thread(target=srv.serve_forever, kwargs={"poll_interval": 0.1}, daemon=True).start()
         url = f"http://127.0.0.1:{srv.server_address[1]}"
@@ -99,8 +141,14 @@ def main(argv=None) -> int:
         url = a.url
     try:
         clients = [collect.Client(url), collect.Client(url)]
-        clients[0].join("human", a.code_human)
-        clients[1].join("robot", a.code_robot)
+        for c, seat, code in ((clients[0], "human", a.code_human), (clients[1], "robot", a.code_robot)):
+            try:
+                c.join(seat, code)
+            except collect.Refused as e:
+                p.error(f"--url {url} refused the {seat} seat: {e}")
+            except OSError as e:
+                p.error(f"--url {url} does not answer ({getattr(e, 'reason', e)}): start `cogail collect` there or "
+                        "give its address")
         cfg = clients[0].config()
         env = cogail_envs.make_env(a.task)
         keys = {}
@@ -133,6 +181,9 @@ def main(argv=None) -> int:
     print(f"task {a.task} ({env.name}), {cfg['hz']:g} steps/s asked, two clients, {a.steps} frames each")
     print(f"step rate: {min(rates):.2f} steps/s (frames seen by each client: "
           f"{', '.join(f'{r:.2f}' for r in rates)})")
+    if not lat:
+        raise SystemExit(f"no key press was answered within {a.steps} frames: give more --steps, e.g. "
+                         f"{max(300, 10 * a.every)}")
     print(f"press-to-frame latency: median {statistics.median(lat):.1f} ms, p95 {q[18]:.1f} ms ({len(lat)} presses)")
     return 0
 

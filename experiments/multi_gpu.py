@@ -5,33 +5,73 @@ one device at the same per-device batch (one seed of --envs environments per dev
 """
 import argparse
 import json
+import os
+from pathlib import Path
 
-import jax
+
+def count(s: str) -> int:
+    """An argparse ``type``: a whole number of 1 or more."""
+    try:
+        n = int(s)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"give a whole number of 1 or more, not {s!r}")
+    return n
 
 
-def main():
+def check_out(p: argparse.ArgumentParser, opt: str, path: str) -> None:
+    """``p.error`` unless ``path`` is a file this process can write (its folder may still have to be made)."""
+    path = Path(path)
+    if path.is_dir():
+        p.error(f"{opt} {path} is a folder: give a file name, e.g. {path / 'multi_gpu.json'}")
+    folder = path.absolute().parent
+    while not folder.exists():
+        folder = folder.parent
+    if not folder.is_dir():
+        p.error(f"{opt} {path}: {folder} is a file, not a folder: give a path you can write")
+    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        p.error(f"{opt} {path}: cannot write there: give a path you can write")
+
+
+def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--task", default="fetchq")
-    p.add_argument("--envs", type=int, default=8192)
-    p.add_argument("--unroll", type=int, default=94)
-    p.add_argument("--calls", type=int, default=3)
-    p.add_argument("--updates-per-call", type=int, default=4, help="updates per jitted call (dispatch amortised)")
+    p.add_argument("--envs", type=count, default=8192)
+    p.add_argument("--unroll", type=count, default=94)
+    p.add_argument("--calls", type=count, default=3)
+    p.add_argument("--updates-per-call", type=count, default=4, help="updates per jitted call (dispatch amortised)")
     p.add_argument("--out", help="JSON output path")
     p.add_argument("--only-multi", action="store_true", help="skip the one-device row (diagnosing the sharded run)")
-    a = p.parse_args()
+    a = p.parse_args(argv)
+    if a.out and a.only_multi:
+        p.error("--out: --only-multi writes no file (it has no speed-up to record): drop --out or --only-multi")
+    if a.out:
+        check_out(p, "--out", a.out)
     import cogail_envs
+    import jax
+
+    try:
+        cogail_envs.get_task(a.task)
+    except cogail_envs.UnknownTaskError as e:
+        p.error(f"--task: {e}")
 
     from cogail_jax.apps import bench
     from cogail_jax.data import io as data
     from cogail_jax.algo import train
-    from cogail_jax.algo.config import TrainConfig
+    from cogail_jax.algo.config import ConfigError, TrainConfig
 
-    env = cogail_envs.make_env(a.task)
-    expert = train.expert_arrays(data.load_demos(data.ensure_default_demos(env, "train"), env), 4)
-    norm = train.fit_normalizer(expert)
     n = len(jax.devices())
     rows = []
     runs = (((300,), None), (tuple(300 + 100 * i for i in range(n)), "all"))
+    try:  # the runs' settings, checked before the demonstrations are made or anything compiles
+        TrainConfig(task=a.task, num_envs=a.envs, unroll_length=a.unroll, seeds=runs[1][0],
+                    updates_per_call=a.updates_per_call, total_steps=a.envs * a.unroll * 100).validate()
+    except ConfigError as e:
+        p.error(f"--envs {a.envs} --unroll {a.unroll} --updates-per-call {a.updates_per_call}: {e}")
+    env = cogail_envs.make_env(a.task)
+    expert = train.expert_arrays(data.load_demos(data.ensure_default_demos(env, "train"), env), 4)
+    norm = train.fit_normalizer(expert)
     for seeds, devices in runs[1:] if a.only_multi else runs:
         cfg = TrainConfig(task=a.task, num_envs=a.envs, unroll_length=a.unroll, seeds=seeds,
                           updates_per_call=a.updates_per_call,
@@ -44,7 +84,7 @@ def main():
     speedup = rows[1]['env_steps_per_s'] / rows[0]['env_steps_per_s']
     print(f"{a.task}: speed-up with {n} devices at the same per-device batch: {speedup:.2f}x")
     if a.out:
-        from pathlib import Path
+        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         Path(a.out).write_text(json.dumps({"task": a.task, "devices": n, "rows": rows, "speedup": speedup,
                                            "args": vars(a)}, indent=2))
 

@@ -10,32 +10,80 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
+from pathlib import Path
 
 import jax
 import numpy as np
 
 
+def count(s: str) -> int:
+    """An argparse ``type``: a whole number of 1 or more."""
+    try:
+        n = int(s)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"give a whole number of 1 or more, not {s!r}")
+    return n
+
+
+def check_out(p: argparse.ArgumentParser, opt: str, path: str) -> None:
+    """``p.error`` unless ``path`` is a file this process can write (its folder may still have to be made)."""
+    path = Path(path)
+    if path.is_dir():
+        p.error(f"{opt} {path} is a folder: give a file name, e.g. {path / 'pose_slices.json'}")
+    folder = path.absolute().parent
+    while not folder.exists():
+        folder = folder.parent
+    if not folder.is_dir():
+        p.error(f"{opt} {path}: {folder} is a file, not a folder: give a path you can write")
+    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        p.error(f"{opt} {path}: cannot write there: give a path you can write")
+
+
 def main(argv=None) -> None:
-    import cogail_envs
-    from cogail_envs.variations import pose_slice, slice_name
-
-    from cogail_jax.data.generate import Request, resolve_mix, run_requests
-
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--task", required=True)
-    p.add_argument("--num", type=int, default=16)
+    p.add_argument("--num", type=count, default=16)
     p.add_argument("--seed", type=int, default=900)
-    p.add_argument("--batch", type=int, default=None)
+    p.add_argument("--batch", type=count, default=None)
     p.add_argument("--slices", default="", help="comma-separated axes (default: the team's)")
     p.add_argument("--validate", action="store_true", help="also re-simulate each episode open-loop")
     p.add_argument("--coplay", action="store_true",
                    help="also the scripted human of each set with the co-play scripted robot (observables only)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
-    env = cogail_envs.make_env(a.task)
-    team = cogail_envs.get_task(a.task).team
+    import cogail_envs
+    from cogail_envs.variations import POSE_AXES, pose_slice, slice_name
+
+    from cogail_jax.data.generate import Request, resolve_mix, run_requests
+
+    try:
+        team = cogail_envs.get_task(a.task).team
+    except cogail_envs.UnknownTaskError as e:
+        p.error(f"--task: {e}")
+    if team is None:
+        with_team = [t for t in cogail_envs.task_names() if cogail_envs.get_task(t).team is not None]
+        p.error(f"--task {a.task}: the task has no scripted team to play its episodes: give one of "
+                f"{', '.join(with_team)}")
     axes = [x for x in a.slices.split(",") if x] or list(team.held_out_slices)
+    if bad := [x for x in axes if x not in team.held_out_slices]:
+        have = (f"give comma-separated axes of {', '.join(team.held_out_slices)}" if team.held_out_slices else
+                "leave --slices out")
+        what = "a pose axis" if bad[0] not in POSE_AXES else f"one of {a.task}'s held-out slices"
+        p.error(f"--slices: {bad[0]!r} is not {what}: {have}")
+    if a.coplay:
+        from cogail_jax.eval import coplay
+
+        if team.human_act is None or team.robot_act is None:
+            p.error(f"--coplay: {a.task}'s team has no scripted human and robot to play apart: leave --coplay out")
+        if 2 * a.num > coplay.REF_STRIDE:
+            p.error(f"--num {a.num}: with --coplay give at most {coplay.REF_STRIDE // 2} episodes per set")
+    if a.out:
+        check_out(p, "--out", a.out)
+    env = cogail_envs.make_env(a.task)
     sets = [("in-range", 0)] + [(slice_name(x), pose_slice(x)) for x in axes]
     w = resolve_mix(env, "uniform")
     reqs = []
@@ -73,6 +121,7 @@ def main(argv=None) -> None:
             print(f"| {name} | {int(ok.sum())}/{len(ok)} ({100 * ok.mean():.0f} %) |", flush=True)
         print(f"({time.time() - t0:.0f} s)")
     if a.out:
+        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         with open(a.out, "w") as f:
             json.dump(res, f, indent=1)
 

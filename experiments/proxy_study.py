@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -27,6 +28,58 @@ import numpy as np
 
 READS = ("both", "object", "world")
 HUMANS = ("test", "test+varied")
+
+
+def count(s: str) -> int:
+    """An argparse ``type``: a whole number of 1 or more."""
+    try:
+        n = int(s)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"give a whole number of 1 or more, not {s!r}")
+    return n
+
+
+def check_options(p: argparse.ArgumentParser, a: argparse.Namespace) -> tuple[list[str], list[int]]:
+    """The tasks and keys of ``a``, and ``p.error`` with one sentence naming the option and the fix for any option
+    that would end the study after it began (its tasks' datasets made, its proxies trained)."""
+    from cogail_envs import UnknownTaskError, get_task, task_names
+
+    from cogail_jax.eval import coplay
+
+    tasks = [t for t in a.tasks.split(",") if t]
+    if not tasks:
+        p.error("--tasks is empty: give comma-separated tasks with a scripted robot, e.g. seqmanip,handover")
+    for t in tasks:
+        try:
+            team = get_task(t).team
+        except UnknownTaskError as e:
+            p.error(f"--tasks: {e}")
+        if team is None or team.robot_act is None:
+            scripted = [n for n in task_names() if (tm := get_task(n).team) is not None and tm.robot_act is not None]
+            p.error(f"--tasks: {t} has no scripted robot to judge a proxy with: give tasks of {', '.join(scripted)}")
+    try:
+        keys = [int(k) for k in a.keys.split(",")]
+    except ValueError:
+        p.error(f"--keys {a.keys}: give comma-separated integers, e.g. 0,1,2")
+    if bad := [k for k in keys if not 0 <= k < 2 ** 32]:
+        p.error(f"--keys {a.keys}: a key is an integer from 0 to {2 ** 32 - 1}, not {bad[0]}")
+    if a.episodes * coplay.PROXY_EPISODES > coplay.REF_STRIDE:
+        p.error(f"--episodes {a.episodes}: give at most {coplay.REF_STRIDE // coplay.PROXY_EPISODES} (the proxy plays "
+                f"{coplay.PROXY_EPISODES} times as many, and co-play plays at most {coplay.REF_STRIDE} per partner)")
+    out = Path(a.out)
+    if out.exists() and not out.is_dir():
+        p.error(f"--out {out} is a file: give a folder for proxy_study.json and proxy_study.md")
+    folder = out.absolute()
+    while not folder.exists():
+        folder = folder.parent
+    if not folder.is_dir():
+        p.error(f"--out {out}: {folder} is a file, not a folder: give a folder you can write in")
+    if not os.access(folder, os.W_OK) or any(
+            (out / f).exists() and not os.access(out / f, os.W_OK) for f in ("proxy_study.json", "proxy_study.md")):
+        p.error(f"--out {out}: cannot write there: give a folder you can write in")
+    return tasks, keys
 
 
 def _arrays(path, env):
@@ -151,9 +204,9 @@ def main(argv=None):
     p.add_argument("--reads", default=",".join(READS), help=f"what the proxy reads, comma-separated of {READS}")
     p.add_argument("--humans", default=",".join(HUMANS), help=f"what it learns from, comma-separated of {HUMANS}")
     p.add_argument("--keys", default="0,1,2", help="the proxy's initial keys (co-play's is 0)")
-    p.add_argument("--episodes", type=int, default=64,
+    p.add_argument("--episodes", type=count, default=64,
                    help="co-play episodes per partner, as co-play's; the proxy plays PROXY_EPISODES times as many")
-    p.add_argument("--steps", type=int, default=None, help="proxy training steps (default: co-play's)")
+    p.add_argument("--steps", type=count, default=None, help="proxy training steps (default: co-play's)")
     p.add_argument("--out", default="results/proxy_study", help="folder for proxy_study.json / .md")
     a = p.parse_args(argv)
     reads, humans = a.reads.split(","), a.humans.split(",")
@@ -165,9 +218,10 @@ def main(argv=None):
 
     set_deterministic(True)  # before JAX starts: the same figures from the same command
     enable_compile_cache()
+    tasks, keys = check_options(p, a)
     rows = []
-    for task in a.tasks.split(","):
-        rows += study_task(task, reads, humans, [int(k) for k in a.keys.split(",")], a.episodes, a.steps)
+    for task in tasks:
+        rows += study_task(task, reads, humans, keys, a.episodes, a.steps)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "proxy_study.json").write_text(json.dumps(rows, indent=1))

@@ -1,0 +1,61 @@
+"""The experiment scripts' options: a bad one ends in one sentence naming it and the fix, before anything runs."""
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+EXPERIMENTS = Path(__file__).parents[1] / "experiments"
+
+# A stand-in for JaxMARL's baselines/IPPO/ippo_ff_overcooked.py and its config (the script reads nothing more
+# before it runs): what bench_jaxmarl_ippo.py checks --layout and --total-steps against.
+STUB = "overcooked_layouts = {'cramped_room': None}\n\ndef make_train(config):\n    raise AssertionError('ran')\n"
+STUB_CONFIG = '"NUM_ENVS": 16\n"NUM_STEPS": 128\n"ENV_KWARGS":\n  "layout": "coord_ring"\n'
+
+
+@pytest.mark.parametrize("script,args,needle", [
+    ("multi_gpu.py", ["--envs", "0"], "argument --envs: give a whole number of 1 or more, not '0'"),
+    ("multi_gpu.py", ["--task", "nope"], "--task: unknown task 'nope'"),
+    ("multi_gpu.py", ["--envs", "3", "--unroll", "3"], "--envs 3 --unroll 3 --updates-per-call 4: num-envs x"),
+    ("multi_gpu.py", ["--out", "{dir}"], "--out {dir} is a folder: give a file name"),
+    ("pose_slices.py", ["--task", "handover", "--batch", "-3"], "argument --batch: give a whole number"),
+    ("pose_slices.py", ["--task", "overcooked"], "--task overcooked: the task has no scripted team"),
+    ("pose_slices.py", ["--task", "handover", "--slices", "x,place"],
+     "--slices: 'place' is not one of handover's held-out slices"),
+    ("pose_slices.py", ["--task", "fetchq", "--out", "{file}/x.json"],
+     "--out {file}/x.json: {file} is a file, not a folder"),
+    ("proxy_study.py", ["--episodes", "0"], "argument --episodes: give a whole number"),
+    ("proxy_study.py", ["--tasks", "seqmanip,overcooked"], "--tasks: overcooked has no scripted robot"),
+    ("proxy_study.py", ["--keys", "0,a"], "--keys 0,a: give comma-separated integers"),
+    ("proxy_study.py", ["--out", "{file}"], "--out {file} is a file: give a folder"),
+    ("collect_latency.py", ["--every", "0"], "argument --every: give a whole number"),
+    ("collect_latency.py", ["--task", "nope"], "--task: unknown task 'nope'"),
+    ("collect_latency.py", ["--url", "http://127.0.0.1:1", "--hz", "5"], "--hz: the table at --url"),
+    ("collect_latency.py", ["--out", "{dir}"], "--out {dir} is a folder: give a file name"),
+    ("bench_jaxmarl_ippo.py", ["--script", "{missing}.py"], "--script {missing}.py is not a Python file"),
+    ("bench_jaxmarl_ippo.py", ["--script", "{stub}", "--seeds", "0"], "argument --seeds: give a whole number"),
+    ("bench_jaxmarl_ippo.py", ["--script", "{stub}", "--total-steps", "100"],
+     "--total-steps 100: give at least one update's steps, 2048"),
+    ("bench_jaxmarl_ippo.py", ["--script", "{stub}", "--layout", "nope"], "--layout nope: no such kitchen"),
+])
+def test_bad_options_end_in_one_sentence_before_anything_runs(script, args, needle, tmp_path):
+    (tmp_path / "DIR").mkdir()
+    (tmp_path / "FILE").write_text("")
+    (tmp_path / "ippo.py").write_text(STUB)
+    (tmp_path / "config").mkdir()
+    (tmp_path / "config" / "ippo_ff_overcooked.yaml").write_text(STUB_CONFIG)
+    paths = {"dir": tmp_path / "DIR", "file": tmp_path / "FILE", "missing": tmp_path / "missing",
+             "stub": tmp_path / "ippo.py"}
+    args, needle = [x.format(**paths) for x in args], needle.format(**paths)
+    before = sorted(tmp_path.rglob("*"))
+    t0 = time.perf_counter()
+    r = subprocess.run([sys.executable, str(EXPERIMENTS / script), *args], capture_output=True, text=True,
+                       timeout=120, cwd=tmp_path, env={**os.environ, "COGAIL_DATA": str(tmp_path / "data")})
+    took = time.perf_counter() - t0
+    assert "Traceback" not in r.stdout + r.stderr, r.stderr
+    last = r.stderr.strip().splitlines()[-1]
+    assert r.returncode == 2 and last.startswith(f"{script}: error: ") and needle in last, r.stderr
+    assert sorted(tmp_path.rglob("*")) == before  # nothing made, nothing started
+    assert took < 30  # the options are checked first: no data is made, nothing compiles

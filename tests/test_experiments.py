@@ -2,7 +2,6 @@
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -50,12 +49,9 @@ def test_bad_options_end_in_one_sentence_before_anything_runs(script, args, need
              "stub": tmp_path / "ippo.py"}
     args, needle = [x.format(**paths) for x in args], needle.format(**paths)
     before = sorted(tmp_path.rglob("*"))
-    t0 = time.perf_counter()
     r = subprocess.run([sys.executable, str(EXPERIMENTS / script), *args], capture_output=True, text=True,
                        timeout=120, cwd=tmp_path, env={**os.environ, "COGAIL_DATA": str(tmp_path / "data")})
-    took = time.perf_counter() - t0
     assert "Traceback" not in r.stdout + r.stderr, r.stderr
     last = r.stderr.strip().splitlines()[-1]
     assert r.returncode == 2 and last.startswith(f"{script}: error: ") and needle in last, r.stderr
-    assert sorted(tmp_path.rglob("*")) == before  # nothing made, nothing started
-    assert took < 30  # the options are checked first: no data is made, nothing compiles
+    assert sorted(tmp_path.rglob("*")) == before  # checked first: no data made, nothing compiled or started

@@ -45,6 +45,7 @@ def test_demos_command(tmp_path):
     (["video", "--task", "fetchq", "--out", "DIR.gif"], "is a folder: pass a file name"),
     (["train", "--task", "fetchq", "--run", "RUN", "--config", "MISSING.json"], "config file"),
     (["train", "--task", "fetchq", "--run", "RUN", "--set", "nope=1"], "unknown config field"),
+    (["train", "--task", "fetchq", "--run", "RUN", "--set", "lrr=1"], "did you mean 'lr'?"),
     (["train", "--task", "fetchq", "--run", "RUN", "--set", "multi_device=mesh"], "multi_device must be auto, shard_map or per_device"),
 ])
 def test_user_errors_are_one_clear_line(args, needle, tmp_path, capsys):
@@ -55,6 +56,25 @@ def test_user_errors_are_one_clear_line(args, needle, tmp_path, capsys):
     assert code == 2
     assert needle in err and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("text,needle", [
+    ("[1, 2]", "holds a JSON list, not an object"),
+    ('{"lr": "abc"}', 'lr is "abc", expected a number'),
+    ('{"seeds": [1, "a"]}', "expected a list of integers"),
+    ('{"reward_norm": 1}', "expected true or false"),
+    ('{"num_envs": 2.5}', "expected an integer"),
+    ('{"lrr": 0.1}', "unknown config field 'lrr': did you mean 'lr'?"),
+    ("{bad", "is not valid JSON"),
+])
+def test_a_config_file_is_checked_field_by_field(text, needle, tmp_path, capsys):
+    """``--config``'s file: a JSON object whose fields exist and have their defaults' types, or one sentence naming
+    the field and the fix before anything runs (no run folder is made)."""
+    f = tmp_path / "c.json"
+    f.write_text(text)
+    code, err = in_process(["train", "--task", "fetchq", "--run", str(tmp_path / "run"), "--config", str(f)], capsys)
+    assert code == 2 and needle in err and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "run").exists()
 
 
 def in_process(args, capsys):

@@ -262,7 +262,7 @@ class TrainConfig:
                                   f"for a run trained with it")
         unknown = set(d) - names
         if unknown:
-            raise ConfigError(f"unknown config keys {sorted(unknown)}")
+            raise unknown_fields(sorted(unknown))
         if "seeds" in d:
             d["seeds"] = tuple(int(s) for s in d["seeds"])
         return cls(**d)
@@ -274,6 +274,36 @@ class TrainConfig:
 
 # Fields removed after they measured no gain (docs/notes.md), with the value every run had unless asked otherwise: a
 # run's config.json holding that value still loads; another value stops with what to do.
+def unknown_fields(names, where: str = "") -> ConfigError:
+    """The error for config fields that do not exist, with the nearest field names."""
+    import difflib
+
+    known = [f.name for f in dataclasses.fields(TrainConfig)]
+    near = [m for n in names for m in difflib.get_close_matches(n, known, n=1)]
+    hint = f"did you mean {', '.join(map(repr, near))}? " if near else ""
+    what = "field" if len(names) == 1 else "fields"
+    return ConfigError(f"{where}unknown config {what} {', '.join(map(repr, names))}: {hint}the fields are "
+                       f"TrainConfig's, in src/cogail_jax/algo/config.py")
+
+
+def check_value(name: str, value, where: str):
+    """``value`` (from a JSON config) if it has the type of field ``name``'s default; ``ConfigError`` naming the
+    field and the type it wants otherwise. Fields whose default is None take any value."""
+    default = {f.name: f.default for f in dataclasses.fields(TrainConfig)}[name]
+    kind = type(default)
+    ok = {bool: lambda v: isinstance(v, bool),
+          int: lambda v: isinstance(v, int) and not isinstance(v, bool),
+          float: lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
+          str: lambda v: isinstance(v, str),
+          tuple: lambda v: isinstance(v, list) and all(isinstance(x, int) and not isinstance(x, bool) for x in v),
+          }.get(kind, lambda v: True)
+    if default is not None and not ok(value):
+        want = {bool: "true or false", int: "an integer", float: "a number", str: "a string",
+                tuple: "a list of integers"}[kind]
+        raise ConfigError(f"{where}{name} is {json.dumps(value)}, expected {want}")
+    return value
+
+
 REMOVED = {"la_codes": "demo", "bc_codes": "demo", "encoder": "mlp", "action_frame": "base"}
 
 
@@ -343,5 +373,5 @@ def resolve(task: str, budget: str = "paper", fields: dict | None = None) -> Tra
     return TrainConfig.from_dict({**own, **fields, "task": task}).validate()
 
 
-__all__ = ["TrainConfig", "ConfigError", "METHODS", "PAPER_METHODS", "FIELD_METHODS", "HYPER", "UPDATE_ONLY", "chunk_key", "field", "field_help",
+__all__ = ["TrainConfig", "ConfigError", "check_value", "unknown_fields", "METHODS", "PAPER_METHODS", "FIELD_METHODS", "HYPER", "UPDATE_ONLY", "chunk_key", "field", "field_help",
            "hyper_values", "program_key", "resolve", "task_default"]

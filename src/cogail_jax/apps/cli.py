@@ -342,11 +342,11 @@ def parse_field(name: str, value: str):
     (also 1e6), floats, comma-separated seeds, none/null for optional files, else the text."""
     import dataclasses
 
-    from ..algo.config import ConfigError, TrainConfig
+    from ..algo.config import ConfigError, TrainConfig, unknown_fields
 
     fields = {f.name: f for f in dataclasses.fields(TrainConfig)}
     if name not in fields:
-        raise ConfigError(f"--set: unknown config field {name!r}")
+        raise unknown_fields([name], "--set: ")
     default = fields[name].default
     kind = type(default)
     v = value.strip()
@@ -376,18 +376,27 @@ def parse_field(name: str, value: str):
 
 def _config_from_args(a) -> "TrainConfig":  # noqa: F821
     """The run's config: the task's settings under ``--budget``, then ``--config``'s fields, then the flags."""
-    from ..algo.config import ConfigError, resolve
+    from ..algo.config import REMOVED, ConfigError, TrainConfig, check_value, resolve, unknown_fields
 
     fields = {}
     if a.config:
         path = Path(a.config)
         if not path.exists():
-            raise ConfigError(f"config file {path} does not exist: see experiments/ for the shipped ones")
+            raise ConfigError(f"config file {path} does not exist: check the path (a JSON object of config fields, "
+                              "e.g. a run's config.json)")
         try:
-            fields.update(json.loads(path.read_text()))
+            given = json.loads(path.read_text())
         except json.JSONDecodeError as e:
-            raise ConfigError(f"config file {path} is not valid JSON ({e.msg} at line {e.lineno})")
-        fields.pop("_comment", None)
+            raise ConfigError(f"config file {path} is not valid JSON ({e.msg} at line {e.lineno}): fix it, or "
+                              "start from a run's config.json")
+        if not isinstance(given, dict):
+            raise ConfigError(f"config file {path} holds a JSON {type(given).__name__}, not an object: write "
+                              '{"FIELD": value, ...}')
+        given.pop("_comment", None)
+        known = TrainConfig.__dataclass_fields__
+        if unknown := sorted(set(given) - set(known) - set(REMOVED)):
+            raise unknown_fields(unknown, f"config file {path}: ")
+        fields.update({k: check_value(k, v, f"config file {path}: ") if k in known else v for k, v in given.items()})
     for key in ("task", "method", "seeds", "total_steps", "num_envs", "env_shards", "unroll_length", "checkpoint_every",
                 "bc_steps", "demos", "heldout", "validation", "mix"):
         val = getattr(a, key)

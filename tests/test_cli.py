@@ -77,6 +77,79 @@ def test_a_config_file_is_checked_field_by_field(text, needle, tmp_path, capsys)
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "run").exists()
 
 
+RUN_CONFIGS = {"not JSON": ("{bad", "cannot be read as JSON"),
+               "a list": ("[1, 2]", "holds a JSON list, not a config's object of fields"),
+               "a field of the wrong type": ('{"task": "fetchq", "num_envs": "four"}', 'num_envs is "four", expected an integer'),
+               "an unknown field": ('{"task": "fetchq", "bogus": 1}', "unknown config field 'bogus'")}
+
+
+@pytest.mark.parametrize("damage", list(RUN_CONFIGS))
+def test_a_damaged_run_config_is_one_sentence_in_every_command(damage, tmp_path, capsys):
+    """A run whose config.json is damaged: every command that reads it (eval, video, data --run, train --resume)
+    ends in one sentence naming the file, before anything runs; so does data --run of a folder that is no run."""
+    text, needle = RUN_CONFIGS[damage]
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "config.json").write_text(text)
+    for args in (["eval", "--run", str(run_dir)], ["video", "--run", str(run_dir), "--out", str(tmp_path / "v.gif")],
+                 ["data", "--run", str(run_dir)], ["train", "--run", str(run_dir), "--resume"]):
+        code, err = in_process(args, capsys)
+        assert code == 2 and needle in err and str(run_dir / "config.json") in err and "Traceback" not in err, err
+        assert len(err.strip().splitlines()) == 1, err
+    assert sorted(p.name for p in run_dir.iterdir()) == ["config.json"]  # nothing made, nothing changed
+    code, err = in_process(["data", "--run", str(tmp_path)], capsys)
+    assert code == 2 and "is not a run directory (no config.json)" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("command", ["demos", "import", "report", "bench", "data"])
+@pytest.mark.parametrize("where", ["a folder", "under a file"])
+def test_an_output_that_cannot_be_written_ends_before_the_work(command, where, tmp_path, capsys, monkeypatch):
+    """Each command that writes a file (or, for ``cogail data``, the data folder) checks the path before it works:
+    one sentence naming it, nothing made (no temporary file left)."""
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "file").write_text("mine")
+    out = tmp_path / "folder" if where == "a folder" else tmp_path / "file" / "x.out"
+    run_dir = tmp_path / "run"  # report's run: a config.json is all it needs to start
+    run_dir.mkdir()
+    (run_dir / "config.json").write_text('{"task": "fetchq"}')
+    monkeypatch.setenv("COGAIL_DATA", str(tmp_path / "data"))
+    args = {"demos": ["demos", "--task", "fetchq", "--num", "2", "--out", str(out)],
+            "import": ["import", "--task", "fetchq", "--in", str(tmp_path / "file"), "--out", str(out)],
+            "report": ["report", "--run", str(run_dir), "--out", str(out)],
+            "bench": ["bench", "fetchq", str(out)]}
+    if command == "data":
+        monkeypatch.setenv("COGAIL_DATA", str(tmp_path / "file" if where == "a folder" else out))
+        args["data"] = ["data", "--task", "fetchq", "--no-robustness", "--no-programs"]
+    before = sorted(str(p) for p in tmp_path.rglob("*"))
+    code, err = in_process(args[command], capsys)
+    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert ("is a folder: pass a file name" if where == "a folder" and command != "data" else
+            "file" in err and ("lies under a file" in err or "is not a folder" in err)), err
+    assert sorted(str(p) for p in tmp_path.rglob("*")) == before and (tmp_path / "file").read_text() == "mine"
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["demos", "--task", "fetchq", "--mix", "a,b", "--out", "OUT"], "--mix a,b: weights are comma-separated numbers"),
+    (["demos", "--task", "fetchq", "--seed", str(2 ** 64), "--out", "OUT"], "a seed is an integer from 0 to 4294967295"),
+    (["data", "--task", "fetchq", "--mix", "D9"], "unknown mixture 'D9' for fetchq: choose one of uniform, D1, D2"),
+    (["train", "--task", "fetchq", "--run", "OUT", "--seeds", "1,4294967296"], "a seed is an integer from 0"),
+    (["train", "--task", "fetchq", "--run", "OUT", "--set", "seeds=-1"], "a seed is an integer from 0"),
+    (["train", "--task", "fetchq", "--run", "OUT", "--total-steps", "inf"], "expected a positive integer, got 'inf'"),
+    (["train", "--task", "fetchq", "--run", "OUT", "--total-steps", "2.5"], "expected a positive integer, got '2.5'"),
+    (["bench", "fetchq", "--sizes", "a"], "--sizes: expected comma-separated positive integers"),
+    (["bench", "fetchq", "--sizes", "-4"], "--sizes: expected comma-separated positive integers"),
+    (["bench", "fetchq", "--env-shards", "0"], "--env-shards: expected a positive integer"),
+    (["eval", "--run", "OUT", "--replay-file", "a/t.hdf5", "--replay-file", "b/t.hdf5"], "are both named 't'"),
+    (["eval", "--run", "OUT", "--replay-file", "a/t.hdf5", "--extra-set", "t=c.hdf5"], "are both named 't'"),
+])
+def test_bad_values_end_before_anything_runs(args, needle, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("COGAIL_DATA", str(tmp_path / "data"))
+    code, err = in_process([a.replace("OUT", str(tmp_path / "out")) for a in args], capsys)
+    assert code == 2 and needle in err and "Traceback" not in err, err
+    assert err.strip().splitlines()[-1].startswith(f"cogail {args[0]}: error:")
+    assert not any(tmp_path.iterdir())  # no data, no run, no output
+
+
 def in_process(args, capsys):
     """``cli.main(args)`` in this process (a user error or a bad flag costs no start of a Python): (exit code,
     stderr)."""

@@ -36,6 +36,7 @@ CASES = {
     "task mismatch": (lambda g: g.attrs.__setitem__("task", "handover"), "task 'handover'"),
     "empty": (lambda g: g.__delitem__("data") or g.create_group("data"), "empty"),
     "no data group": (lambda g: g.__delitem__("data"), "no 'data' group"),
+    "strategy out of range": (lambda g: g["data/demo_1"].attrs.__setitem__("strategy", 9), "strategy 9 is not one"),
 }
 
 
@@ -47,7 +48,7 @@ def test_loader_errors_name_file_demo_problem(case, demo_files, fetchq, tmp_path
         data.load_demos(bad, fetchq)
     msg = str(e.value)
     assert str(bad) in msg and needle in msg and "\n" not in msg
-    if case in ("missing key", "wrong dims", "nan"):
+    if case in ("missing key", "wrong dims", "nan", "strategy out of range"):
         assert "demo_" in msg
 
 

@@ -190,13 +190,18 @@ class TrainConfig:
         from cogail_envs import UnknownTaskError, get_task
 
         try:
-            get_task(self.task)
+            mixtures = get_task(self.task).mixtures
         except UnknownTaskError as e:
             raise ConfigError(str(e))
+        if self.mix != "uniform" and self.mix not in mixtures:
+            raise ConfigError(f"unknown mixture {self.mix!r} for {self.task}: choose one of "
+                              f"{', '.join(['uniform', *mixtures])}")
         if self.method not in METHODS:
             raise ConfigError(f"unknown method {self.method!r}: choose one of {', '.join(METHODS)}")
         if not self.seeds:
             raise ConfigError("no seeds given: pass --seeds, e.g. --seeds 300,400,500")
+        if any(not 0 <= s < 2 ** 32 for s in self.seeds):
+            raise ConfigError(f"seeds {list(self.seeds)}: a seed is an integer from 0 to {2 ** 32 - 1}")
         for name in ("total_steps", "num_envs", "unroll_length", "scan_unroll", "updates_per_call", "checkpoint_every",
                      "ppo_epochs", "num_minibatches", "inner_updates", "inner_batch", "eval_codes"):
             if getattr(self, name) <= 0:
@@ -263,13 +268,31 @@ class TrainConfig:
         unknown = set(d) - names
         if unknown:
             raise unknown_fields(sorted(unknown))
+        for key, value in d.items():
+            check_value(key, value, "")
         if "seeds" in d:
             d["seeds"] = tuple(int(s) for s in d["seeds"])
         return cls(**d)
 
     @classmethod
     def load(cls, path: str | Path) -> "TrainConfig":
-        return cls.from_dict(json.loads(Path(path).read_text()))
+        """The config a run wrote (``RUN/config.json``); ``ConfigError`` saying what is wrong with the file and
+        what to do if it is missing, not JSON, not an object or holds a field that is not a field or not of its
+        type."""
+        path = Path(path)
+        fix = "pass the --run of a training run, or put back the config.json it was trained with"
+        if not path.is_file():
+            raise ConfigError(f"{path.parent} is not a run directory (no config.json): {fix}")
+        try:
+            d = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, ValueError) as e:
+            raise ConfigError(f"{path} cannot be read as JSON ({e}): {fix}") from None
+        if not isinstance(d, dict):
+            raise ConfigError(f"{path} holds a JSON {type(d).__name__}, not a config's object of fields: {fix}")
+        try:
+            return cls.from_dict(d)
+        except ConfigError as e:
+            raise ConfigError(f"{path}: {e}") from None
 
 
 # Fields removed after they measured no gain (docs/notes.md), with the value every run had unless asked otherwise: a
@@ -295,7 +318,8 @@ def check_value(name: str, value, where: str):
           int: lambda v: isinstance(v, int) and not isinstance(v, bool),
           float: lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
           str: lambda v: isinstance(v, str),
-          tuple: lambda v: isinstance(v, list) and all(isinstance(x, int) and not isinstance(x, bool) for x in v),
+          tuple: lambda v: (isinstance(v, (list, tuple))
+                            and all(isinstance(x, int) and not isinstance(x, bool) for x in v)),
           }.get(kind, lambda v: True)
     if default is not None and not ok(value):
         want = {bool: "true or false", int: "an integer", float: "a number", str: "a string",
@@ -368,6 +392,10 @@ def resolve(task: str, budget: str = "paper", fields: dict | None = None) -> Tra
         own = get_task(task).config(budget)
     except UnknownTaskError as e:
         raise ConfigError(str(e))
+    names = {f.name for f in dataclasses.fields(TrainConfig)}
+    for key, value in own.items():  # your own task's settings: named as such
+        if key in names:
+            check_value(key, value, f"task {task}'s settings ({budget}): ")
     if fields.get("demos") and "train_varied" not in fields:  # your training file: the task's varied humans are
         own.pop("train_varied", None)                         # added to its own training set, not to yours
     return TrainConfig.from_dict({**own, **fields, "task": task}).validate()

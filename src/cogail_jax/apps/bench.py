@@ -202,24 +202,26 @@ def _write(rows, out):
 
 
 def add_arguments(p) -> None:
+    from .options import positive, positive_list, seeds
+
     p.add_argument("task", nargs="?", default=None, help="a task name or my_pkg.my_module:TASK (its training split "
                    "must exist: `cogail data --task T`)")
     p.add_argument("out", nargs="?", default=None, help="JSON output path")
-    p.add_argument("--sizes", default="64,1024,8192", help="comma-separated batch sizes")
-    p.add_argument("--steps", type=int, default=200, help="env steps per timed call")
+    p.add_argument("--sizes", type=positive_list, default=(64, 1024, 8192), help="comma-separated batch sizes")
+    p.add_argument("--steps", type=positive, default=200, help="env steps per timed call")
     p.add_argument("--env-only", action="store_true", help="skip the train_step rows")
     p.add_argument("--no-peer", action="store_true", help="skip brax's PPO")
     p.add_argument("--peer-only", action="store_true", help="skip the Co-GAIL train_step rows (env-only and brax)")
     p.add_argument("--train-only", action="store_true", help="the Co-GAIL train_step rows alone")
-    p.add_argument("--unroll", type=int, default=94, help="rollout length per update")
-    p.add_argument("--calls", type=int, default=3, help="timed train_step calls per row")
-    p.add_argument("--seeds", default=None, help="the train rows' seeds, e.g. 300 (default: one row with 300, one "
+    p.add_argument("--unroll", type=positive, default=94, help="rollout length per update")
+    p.add_argument("--calls", type=positive, default=3, help="timed train_step calls per row")
+    p.add_argument("--seeds", type=seeds, default=None, help="the train rows' seeds, e.g. 300 (default: one row with 300, one "
                    "with 300,400,500)")
     p.add_argument("--devices", default=None, help="the train rows over N devices or 'all' (as `cogail train`)")
-    p.add_argument("--env-shards", type=int, default=1, help="the train rows' env shards (as `cogail train`)")
+    p.add_argument("--env-shards", type=positive, default=1, help="the train rows' env shards (as `cogail train`)")
     p.add_argument("--task-settings", action="store_true",
                    help="the train rows with the task's own settings (default: the config's field defaults)")
-    p.add_argument("--updates-per-call", type=int, default=None, help="updates per timed call (default calls + 1, "
+    p.add_argument("--updates-per-call", type=positive, default=None, help="updates per timed call (default calls + 1, "
                    "at most 5)")
     p.add_argument("--phases", nargs="+", default=None, metavar="RUN",
                    help="benchmark nothing: print the seconds of each phase (demos, bc, compile, train, eval, "
@@ -245,6 +247,8 @@ def phases_report(runs) -> str:
 
 
 def run_from_args(a) -> None:
+    from ..runtime.paths import output_file
+
     if a.phases:
         print(phases_report(a.phases))
         return
@@ -252,8 +256,10 @@ def run_from_args(a) -> None:
         from ..algo.config import ConfigError
 
         raise ConfigError("no task given: pass one, e.g. `cogail bench TASK` (or --phases RUN ...)")
-    seed_sets = ((300,), (300, 400, 500)) if a.seeds is None else (tuple(int(x) for x in a.seeds.split(",")),)
-    main(a.task, tuple(int(x) for x in a.sizes.split(",")), a.out, a.env_only, a.steps, not a.no_peer,
+    if a.out:
+        output_file(a.out, "out", "bench.json")
+    seed_sets = ((300,), (300, 400, 500)) if a.seeds is None else (a.seeds,)
+    main(a.task, a.sizes, a.out, a.env_only, a.steps, not a.no_peer,
          a.unroll, a.calls, not a.peer_only, seed_sets, a.devices, a.env_shards, a.task_settings,
          a.updates_per_call, a.train_only)
 

@@ -15,26 +15,7 @@ os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
 from ..runtime.xla import DETERMINISTIC_FLAG, deterministic_ops, enable_compile_cache, set_deterministic  # noqa: F401
-
-
-def _seeds(text: str) -> tuple[int, ...]:
-    try:
-        seeds = tuple(int(s) for s in text.split(",") if s.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--seeds must be comma-separated integers, e.g. 300,400,500, got {text!r}")
-    if not seeds:
-        raise argparse.ArgumentTypeError("--seeds needs at least one integer")
-    return seeds
-
-
-def _positive(text: str) -> int:
-    try:
-        v = int(float(text))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return v
+from .options import positive, seed, seeds
 
 
 EXTRA_CURVES_HELP = ("replay the extra sets and varied humans at every checkpoint, not only at the reported ones: "
@@ -70,15 +51,15 @@ def _add_config_args(t) -> None:
     t.add_argument("--task", default=None, help=_task_help() + "; its own settings are the defaults")
     t.add_argument("--budget", default="paper", help=_budget_help())
     t.add_argument("--method", default=None, choices=METHODS, help="method preset (default cogail)")
-    t.add_argument("--seeds", type=_seeds, default=None, help="comma-separated seeds (default 300,400,500)")
+    t.add_argument("--seeds", type=seeds, default=None, help="comma-separated seeds (default 300,400,500)")
     t.add_argument("--config", default=None, help="JSON file of config fields, over the task's settings")
-    t.add_argument("--total-steps", type=_positive, default=None, help="env steps per seed")
-    t.add_argument("--num-envs", type=_positive, default=None, help="parallel environments per seed")
-    t.add_argument("--env-shards", type=_positive, default=None, metavar="N",
+    t.add_argument("--total-steps", type=positive, default=None, help="env steps per seed")
+    t.add_argument("--num-envs", type=positive, default=None, help="parallel environments per seed")
+    t.add_argument("--env-shards", type=positive, default=None, metavar="N",
                    help="split each seed's envs into N shards that average their updates' gradients: one per device "
                         "with --devices (N devices train one policy on N x the envs of one), side by side on one")
-    t.add_argument("--unroll-length", type=_positive, default=None, help="rollout steps per env per update")
-    t.add_argument("--checkpoint-every", type=_positive, default=None, help="updates between checkpoints")
+    t.add_argument("--unroll-length", type=positive, default=None, help="rollout steps per env per update")
+    t.add_argument("--checkpoint-every", type=positive, default=None, help="updates between checkpoints")
     t.add_argument("--bc-steps", type=int, default=None, help="behaviour-cloning pre-training steps (0 = off)")
     t.add_argument("--demos", default=None, help="training demonstrations (HDF5); default: the task's training set")
     t.add_argument("--heldout", default=None, help="test demonstrations for replay evaluation (default: the task's "
@@ -98,7 +79,7 @@ def _add_coplay_args(p, prefix: str) -> None:
                         "results.json's coplay, RUN/coplay.png; on a task learned from people (Overcooked) the field's "
                         "protocol instead: H_proxy, a BC model of the test pairs, with the robot in both seats, "
                         "selection with the validation pairs' (docs/evaluation.md); results.json's field")
-    p.add_argument("--coplay-episodes", type=_positive, default=None, metavar="N",
+    p.add_argument("--coplay-episodes", type=positive, default=None, metavar="N",
                    help="co-play episodes per partner and robot (default 64 on an accelerator, 4 on a CPU)")
 
 
@@ -106,7 +87,7 @@ def _add_distributed_args(p) -> None:
     g = p.add_argument_group("several processes (one per host or per GPU; README, \"Several GPUs and hosts\")")
     g.add_argument("--coordinator", default=None, metavar="HOST:PORT",
                    help="process 0's address, where every process of the run meets")
-    g.add_argument("--num-processes", type=_positive, default=None, metavar="N", help="how many processes the run has")
+    g.add_argument("--num-processes", type=positive, default=None, metavar="N", help="how many processes the run has")
     g.add_argument("--process-id", type=int, default=None, metavar="I", help="this process's index, 0..N-1 "
                    "(process 0 writes the run folder)")
     g.add_argument("--cluster", action="store_true",
@@ -138,9 +119,9 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Generate scripted human-human demonstrations (one jitted, vmapped call) "
                                    "and write them in the project's HDF5 schema (see README).")
     d.add_argument("--task", required=True, help=_task_help())
-    d.add_argument("--num", type=_positive, default=60, help="number of demonstrations (default 60)")
+    d.add_argument("--num", type=positive, default=60, help="number of demonstrations (default 60)")
     d.add_argument("--mix", default="uniform", help=_mix_help() + ", or comma-separated weights")
-    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--seed", type=seed, default=0)
     d.add_argument("--out", required=True, help="output .hdf5 path")
 
     da = sub.add_parser("data", help="make every dataset a run needs (train, validation, test, varied humans)",
@@ -201,7 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "beside the checkpoint selected on the validation set (reported on test) and "
                                    "the last checkpoint. The seconds spent go into RUN/speed.json (eval, write).")
     e.add_argument("--run", required=True, help="run directory")
-    e.add_argument("--every", type=_positive, default=1, help="evaluate every k-th checkpoint (default 1: all)")
+    e.add_argument("--every", type=positive, default=1, help="evaluate every k-th checkpoint (default 1: all)")
     e.add_argument("--replay-file", action="append", default=[], metavar="FILE.hdf5",
                    help="an extra test set (e.g. the trials `cogail play` recorded, an imported file): replayed at "
                         "the checkpoint selected on validation and at the paper-protocol replay checkpoint; results "
@@ -224,7 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--reevaluate", action="store_true",
                    help="with extra sets: evaluate every checkpoint again even if RUN/results.json is up to date "
                         "(by default only the extra sets are replayed then)")
-    e.add_argument("--ckpt-batch", type=_positive, default=None, metavar="N",
+    e.add_argument("--ckpt-batch", type=positive, default=None, metavar="N",
                    help="evaluate N checkpoints in one device program (vmapped; more memory; on a GPU the batch "
                         "can move figures at the rounding level; default: every checkpoint on a GPU, halved while "
                         "the device runs out of memory; 1 on the CPU)")
@@ -245,11 +226,11 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--port", type=int, default=8765, help="port on 127.0.0.1 (default 8765; 0: any free port)")
     pl.add_argument("--trials", default=None, metavar="FILE.hdf5",
                     help="where trials are appended (default: trials.hdf5 in the first --run)")
-    pl.add_argument("--max-steps", type=_positive, default=None,
+    pl.add_argument("--max-steps", type=positive, default=None,
                     help="end a trial after this many steps (default: the task's episode length)")
     pl.add_argument("--hz", type=float, default=None, help="steps per second the page asks for (default: the task's, "
                     "15 for most)")
-    pl.add_argument("--seed", type=int, default=0, help="seed of the blind order and the start states")
+    pl.add_argument("--seed", type=seed, default=0, help="seed of the blind order and the start states")
 
     co = sub.add_parser("collect", help="two people drive both agents of a task in a web page; every episode is recorded",
                         description="Serve a page on which two people drive the human agent and the robot agent (two "
@@ -266,7 +247,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="listen on the local network (default: this machine only); each seat is then taken with "
                          "the join code printed at start")
     co.add_argument("--hz", type=float, default=None, help="env steps per second (default: the task's, 15 for most)")
-    co.add_argument("--max-steps", type=_positive, default=None,
+    co.add_argument("--max-steps", type=positive, default=None,
                     help="end an episode after this many steps (default: the task's episode length)")
     co.add_argument("--gap", type=float, default=2.0, help="seconds between an episode's end and the next (default 2)")
     co.add_argument("--hold", type=float, default=0.5,
@@ -274,7 +255,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "(default 0.5)")
     co.add_argument("--leave", type=float, default=5.0,
                     help="seconds without news after which a seat is free again and the episode ends (default 5)")
-    co.add_argument("--seed", type=int, default=None, help="seed of the start states (default: a random one, recorded)")
+    co.add_argument("--seed", type=seed, default=None, help="seed of the start states (default: a random one, recorded)")
 
     b = sub.add_parser("bench", help="throughput table: env-only, Co-GAIL train_step (1 and 3 seeds), brax PPO",
                        description="Env steps/s of the task alone (random actions), of the full Co-GAIL update "
@@ -294,9 +275,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "renderer (no display needed).")
     v.add_argument("--task", default=None, help=_task_help() + " (with --run: the run's)")
     v.add_argument("--run", default=None, help="run directory (default: scripted demonstrations)")
-    v.add_argument("--num", type=_positive, default=4, help="episodes to render")
+    v.add_argument("--num", type=positive, default=4, help="episodes to render")
     v.add_argument("--out", required=True, help="output .gif or .mp4")
-    v.add_argument("--steps", type=_positive, default=None, help="render at most this many steps per episode")
+    v.add_argument("--steps", type=positive, default=None, help="render at most this many steps per episode")
 
     im = sub.add_parser("import", help="convert your own demonstrations (robomimic-style HDF5 or .npz) for a task",
                         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -410,9 +391,9 @@ def _config_from_args(a) -> "TrainConfig":  # noqa: F821
     task = fields.pop("task", None) or ""
     saved = Path(a.run) / "config.json" if getattr(a, "resume", False) and getattr(a, "run", None) else None
     if not task and saved is not None and saved.exists():  # `cogail train --run R --resume`: the run's own task
-        saved_cfg = json.loads(saved.read_text())
-        task = saved_cfg.get("task", "")
-        fields.setdefault("method", saved_cfg.get("method"))
+        saved_cfg = TrainConfig.load(saved)
+        task = saved_cfg.task
+        fields.setdefault("method", saved_cfg.method)
     return resolve(task, a.budget, fields)
 
 
@@ -445,6 +426,7 @@ def main(argv=None) -> int:
     from cogail_envs import UnknownTaskError
 
     from ..runtime.checkpoint import CheckpointError
+    from ..runtime.paths import OutputError
     from ..algo.config import ConfigError
     from ..data.io import DatasetError
     from .runs import RunError
@@ -455,7 +437,7 @@ def main(argv=None) -> int:
 
             join(args.coordinator, args.num_processes, args.process_id, args.cluster)
         return _dispatch(args)
-    except (ConfigError, DatasetError, RunError, CheckpointError, UnknownTaskError) as e:
+    except (ConfigError, DatasetError, RunError, CheckpointError, UnknownTaskError, OutputError) as e:
         print(f"cogail {args.command}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -473,6 +455,9 @@ def main(argv=None) -> int:
 
 
 def _dispatch(a) -> int:
+    from ..algo.config import ConfigError
+    from ..runtime.paths import output_dir, output_file
+
     if a.command == "demos":
 
         import cogail_envs
@@ -483,14 +468,17 @@ def _dispatch(a) -> int:
         env = cogail_envs.make_env(a.task)
         mix = a.mix
         if "," in mix:
-            mix = tuple(float(x) for x in mix.split(","))
+            try:
+                mix = tuple(float(x) for x in mix.split(","))
+            except ValueError:
+                raise ConfigError(f"--mix {a.mix}: weights are comma-separated numbers, one per strategy, e.g. "
+                                  f"{','.join(['1'] * env.num_strategies)}") from None
+        output_file(a.out, "--out", "demos.hdf5")
         try:
             t0 = time.time()
             eps = demos.generate(env, a.num, mix=mix, seed=a.seed)
             dt = time.time() - t0
         except ValueError as e:
-            from ..algo.config import ConfigError
-
             raise ConfigError(str(e))
         path = data.save_demos(a.out, env, eps, mixture=str(a.mix), seed=a.seed)
         import numpy as np
@@ -507,6 +495,9 @@ def _dispatch(a) -> int:
         from ..runtime.timing import CompileLog
 
         cfg = TrainConfig.load(Path(a.run) / "config.json") if a.run else _config_from_args(a)
+        from ..data.io import data_dir
+
+        output_dir(data_dir(), "the data folder", "set COGAIL_DATA to a folder you can write")
         t0, compiles = time.perf_counter(), CompileLog()
         ahead = None
         if a.programs and program_dir() is not None:
@@ -572,14 +563,20 @@ def _dispatch(a) -> int:
         distributed.barrier("done")
         return 0
     if a.command == "eval":
-        from ..algo.config import ConfigError
         from .eval_runner import eval_coplay, eval_extra_sets, eval_run, replay_results_dir, results_current
 
-        sets = {Path(f).stem: f for f in a.replay_file}
+        sets = {}
+        named = [(Path(f).stem, f, f"--replay-file {f}") for f in a.replay_file]
         for item in a.extra_set:
             if "=" not in item:
                 raise ConfigError(f"--extra-set needs NAME=FILE, got {item!r}")
             name, f = item.split("=", 1)
+            named.append((name, f, f"--extra-set {item}"))
+        for name, f, given in named:  # each set's results go to a folder of its name
+            if name in sets:
+                first = next(g for n, _, g in named if n == name)
+                raise ConfigError(f"{first} and {given} are both named {name!r}, and each set's results are written "
+                                  f"under its name: name them apart with --extra-set NAME=FILE")
             sets[name] = f
         if a.coplay_only:
             eval_coplay(a.run, a.coplay_episodes)
@@ -613,8 +610,6 @@ def _dispatch(a) -> int:
         from .video import write_video
 
         if not a.task and not a.run:
-            from ..algo.config import ConfigError
-
             raise ConfigError("cogail video needs --run RUN (a run's rollouts) or --task TASK (scripted demonstrations)")
         path = write_video(a.task, a.out, run=a.run, num=a.num, steps=a.steps)
         print(f"wrote {path}")
@@ -623,11 +618,14 @@ def _dispatch(a) -> int:
         from ..data.importer import import_demos, load_mapping, parse_keys
 
         mapping = {**(load_mapping(a.map) if a.map else {}), **parse_keys(a.key)}
+        output_file(a.out, "--out", "mine.hdf5")
         print(import_demos(a.src, a.out, a.task, mapping).describe(a.task))
         return 0
     if a.command == "report":
         from .report import build_report
 
+        if a.out is not None:
+            output_file(a.out, "--out", "report.html")
         print(f"wrote {build_report(a.run, a.out)}")
         return 0
     return 1

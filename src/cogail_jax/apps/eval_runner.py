@@ -266,8 +266,7 @@ def eval_run(run_dir: str | Path, progress: bool = True, every: int = 1, replay_
     The seconds spent evaluating and writing replace the ``eval`` and ``write`` phases of RUN/speed.json."""
     clock, part_clock, compiles = timing.Phases(), timing.Phases(), timing.CompileLog()
     run_dir = Path(run_dir)
-    if not (run_dir / "config.json").exists():
-        raise RunError(f"{run_dir} is not a run directory (no config.json): pass the --run of a training run")
+    TrainConfig.load(run_dir / "config.json")  # no run, or a damaged config: one sentence before anything is read
     with clock("eval"):
         with part_clock("setup"):
             store = Policies(run_dir)

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from ..algo.config import ConfigError
-from .io import SCHEMA_VERSION, DatasetError, load_demos
+from .io import SCHEMA_VERSION, DatasetError, Demos, load_demos
 
 ARRAY_FIELDS = ("obs", "actions", "actions_human", "actions_robot", "init", "strategy", "length")
 STRUCT_FIELDS = ("group", "demo_prefix")
@@ -503,28 +503,11 @@ def make_task_env(task: str):
                           f"{', '.join(t for t in cogail_envs.TASKS if t != task)} instead")
 
 
-def import_demos(src: str | os.PathLike, out: str | os.PathLike, task: str, mapping: dict | None = None,
-                 env=None) -> ImportSummary:
-    """Convert ``src`` (HDF5 or .npz) into the project's schema at ``out``; validate it against ``task``."""
+def _write_checked(path: Path, src: Path, env, demos: list) -> Demos:
+    """Write ``demos`` to ``path`` in the project's schema and read them back through the loader's checks."""
     import h5py
 
-    src, out = Path(src), Path(out)
-    mapping = check_mapping(dict(mapping or {}), "the key mapping")
-    env = env or make_task_env(task)
-    kind = _file_kind(src)
-    if out.exists() and out.resolve() == src.resolve():
-        raise ConfigError(f"--out {out} is the input file: write the converted file somewhere else")
-    if kind == "npz" and out.suffix == ".npz":
-        raise ConfigError(f"--out {out} should be an .hdf5 file (the project's format), not .npz")
-    demos = _read_hdf5(src, env, mapping) if kind == "hdf5" else _read_npz(src, env, mapping)
-    trimmed = 0
-    for d in demos:
-        at = f"input file {src}, demo {d.name}"
-        d.obs, d.ah, d.ar = (np.asarray(x) for x in (d.obs, d.ah, d.ar))
-        trimmed += _check_demo(d, env, at)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    with h5py.File(tmp, "w") as f:
+    with h5py.File(path, "w") as f:
         f.attrs.update(task=env.name, schema_version=SCHEMA_VERSION, obs_dim=env.observation_size,
                        human_action_dim=env.human_action_size, robot_action_dim=env.robot_action_size,
                        init_dim=env.init_size, num_demos=len(demos), mixture="imported", seed=0,
@@ -540,12 +523,36 @@ def import_demos(src: str | os.PathLike, out: str | os.PathLike, task: str, mapp
             g.attrs["strategy"] = int(d.strategy)
             g.attrs["num_samples"] = int(d.obs.shape[0])
             g.attrs["source_demo"] = d.name
+    return load_demos(path, env)
+
+
+def import_demos(src: str | os.PathLike, out: str | os.PathLike, task: str, mapping: dict | None = None,
+                 env=None) -> ImportSummary:
+    """Convert ``src`` (HDF5 or .npz) into the project's schema at ``out``; validate it against ``task``."""
+    src, out = Path(src), Path(out)
+    mapping = check_mapping(dict(mapping or {}), "the key mapping")
+    env = env or make_task_env(task)
+    kind = _file_kind(src)
+    if out.exists() and out.resolve() == src.resolve():
+        raise ConfigError(f"--out {out} is the input file: write the converted file somewhere else")
+    if kind == "npz" and out.suffix == ".npz":
+        raise ConfigError(f"--out {out} should be an .hdf5 file (the project's format), not .npz")
+    demos = _read_hdf5(src, env, mapping) if kind == "hdf5" else _read_npz(src, env, mapping)
+    if not demos:
+        raise DatasetError(f"input file {src} holds no demonstrations: give a file with at least one (or, if it "
+                           "has them elsewhere, say where with --key or --map)")
+    trimmed = 0
+    for d in demos:
+        at = f"input file {src}, demo {d.name}"
+        d.obs, d.ah, d.ar = (np.asarray(x) for x in (d.obs, d.ah, d.ar))
+        trimmed += _check_demo(d, env, at)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f"{out.name}.{os.getpid()}.tmp")
     try:
-        loaded = load_demos(tmp, env)
-    except DatasetError:
-        tmp.unlink(missing_ok=True)
-        raise
-    os.replace(tmp, out)
+        loaded = _write_checked(tmp, src, env, demos)
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)  # a failed write or check leaves nothing behind
     counts = np.bincount(loaded.strategy, minlength=env.num_strategies + 1).tolist()
     return ImportSummary(src=str(src), out=str(out), kind=kind, num=loaded.num,
                          mean_length=float(loaded.length.mean()), strategies=counts,

@@ -66,11 +66,20 @@ def save_demos(path: str | os.PathLike, env, episodes, mixture: str = "uniform",
                generated: int = 0) -> Path:
     """Write episodes (``demos.Episodes``) to an HDF5 file in the project's schema; ``generated`` (optional) records
     how many episodes the generator was asked for (failed ones are not kept)."""
-    import h5py
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f"{path.suffix}.{os.getpid()}.tmp")  # per process: concurrent writers never share it
+    try:
+        _write_episodes(tmp, env, episodes, mixture, seed, generated)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)  # a failed write leaves nothing behind
+    return path
+
+
+def _write_episodes(tmp: Path, env, episodes, mixture: str, seed: int, generated: int) -> None:
+    import h5py
+
     with h5py.File(tmp, "w") as f:
         f.attrs.update(task=env.name, schema_version=SCHEMA_VERSION, obs_dim=env.observation_size,
                        human_action_dim=env.human_action_size, robot_action_dim=env.robot_action_size,
@@ -90,8 +99,6 @@ def save_demos(path: str | os.PathLike, env, episodes, mixture: str = "uniform",
             g.attrs["num_samples"] = n
             for k, v in (episodes.final_metrics or {}).items():  # e.g. the handover spot
                 g.attrs[f"metric_{k}"] = float(np.asarray(v)[i])
-    os.replace(tmp, path)
-    return path
 
 
 def append_demo(path: str | os.PathLike, env, obs, actions_human, actions_robot, init, strategy: int = 0,
@@ -215,7 +222,13 @@ def load_demos(path: str | os.PathLike, env, require_init: bool = False) -> Demo
             if int(n) != T:
                 raise DatasetError(f"{at}: attr num_samples={int(n)} but the arrays have {T} steps")
             lengths.append(T)
-            strategies.append(int(g.attrs.get("strategy", 0)))
+            strategy = g.attrs.get("strategy", 0)
+            S = env.num_strategies
+            if np.ndim(strategy) or float(strategy) != int(strategy) or not 0 <= int(strategy) <= S:
+                raise DatasetError(f"{at}: strategy {strategy} is not one of {env.name}'s ids, 1..{S} "
+                                   f"({', '.join(env.strategy_names)}), or 0 for unknown: relabel it, e.g. with "
+                                   "`cogail import --key strategy=...`")
+            strategies.append(int(strategy))
             metrics.append({k[7:]: float(v) for k, v in g.attrs.items() if k.startswith("metric_")})
             if "init" in g:
                 init = np.asarray(g["init"][()], np.float32).reshape(-1)

@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import shutil
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -242,6 +244,7 @@ def _check_fits(mgr, step: int, disk_abstract) -> None:
         if not saved:
             raise ValueError("no arrays listed")
     except Exception as e:  # noqa: BLE001 - missing / damaged metadata files
+        _quiet_failed_reads()
         raise CheckpointCorrupt(f"{where} is unreadable: its files are damaged or missing ({_short(e)})") from e
     want = _flat(disk_abstract)
     if set(saved) != set(want):
@@ -268,8 +271,8 @@ def _closed_loop_noise(unraisable) -> bool:
 
 def _quiet_failed_reads() -> None:
     """A failed Orbax restore leaves TensorStore reads pending; each reports, when it ends, a "RuntimeError:
-    Event loop is closed" traceback through ``sys.unraisablehook``. Drop exactly those (the failure itself is
-    reported once, as a CheckpointError); anything else goes to the previous hook."""
+    Event loop is closed" traceback through ``sys.unraisablehook`` or straight to ``sys.stderr``. Drop exactly
+    those (the failure itself is reported once, as a CheckpointError); anything else goes where it went."""
     prev = sys.unraisablehook
     if getattr(prev, "_cogail_quiet", False):
         return
@@ -280,6 +283,45 @@ def _quiet_failed_reads() -> None:
 
     hook._cogail_quiet = True
     sys.unraisablehook = hook
+    if not isinstance(sys.stderr, _QuietStderr):
+        sys.stderr = _QuietStderr(sys.stderr)
+
+
+# A failed Orbax restore leaves TensorStore reads pending; when each ends, its thread prints straight to sys.stderr
+# (not through a hook) a traceback of "RuntimeError: Event loop is closed", in pieces that interleave between threads.
+_NOISE_LINE = re.compile(r"\s*(?:Traceback \(most recent call last\):|File \"[^\"]*asyncio[/\\]base_events\.py\", "
+                         r"line \d+, in (?:call_soon_threadsafe|_check_closed)|self\._check_closed\(\)|"
+                         r"raise RuntimeError\('Event loop is closed'\)|RuntimeError: Event loop is closed)\s*")
+
+
+class _QuietStderr:
+    """``sys.stderr`` from the first restore on: what threads other than the main one write is put together line
+    by line (per thread; a thread's ``flush`` passes on its unfinished line) and passed on without the lines of
+    those tracebacks; the main thread's goes straight through (progress bars, warnings)."""
+
+    def __init__(self, real):
+        self.real, self.parts, self.lock = real, {}, threading.Lock()
+
+    def write(self, text: str) -> int:
+        if threading.current_thread() is threading.main_thread():
+            return self.real.write(text)
+        with self.lock:
+            *lines, self.parts[threading.get_ident()] = (self.parts.get(threading.get_ident(), "") + text).split("\n")
+            kept = [line for line in lines if not _NOISE_LINE.fullmatch(line)]
+            if kept:
+                self.real.write("\n".join(kept) + "\n")
+        return len(text)
+
+    def flush(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            with self.lock:
+                part = self.parts.pop(threading.get_ident(), "")
+            if part and not _NOISE_LINE.fullmatch(part):
+                self.real.write(part)
+        self.real.flush()
+
+    def __getattr__(self, name):
+        return getattr(self.real, name)
 
 
 def _short(e: BaseException) -> str:
@@ -288,6 +330,7 @@ def _short(e: BaseException) -> str:
 
 
 def _restore(mgr, step: int, abstract_state):
+    _quiet_failed_reads()  # before the reads: a failed one's pending reads may end before its error is caught
     disk_abstract = _abstract_for_disk(abstract_state)
     _check_fits(mgr, step, disk_abstract)
     dev = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])

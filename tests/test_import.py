@@ -174,6 +174,9 @@ CASES = {
     "unknown field": (lambda t: NPZ, ["--key", "observations=obs"], ["unknown field 'observations'"]),
     "malformed key": (lambda t: NPZ, ["--key", "obs"], ["FIELD=SOURCE"]),
     "bad map file": (lambda t: (t / "m.json").write_text("{obs: x") and NPZ, ["--map", "MAPJSON"], ["not valid JSON"]),
+    "zero demos": (lambda t: _bad_npz(t, obs=np.zeros((0, 5, 12)), actions=np.zeros((0, 5, 4)),
+                                      strategy=np.zeros(0, int), length=np.zeros(0, int), init=np.zeros((0, 4))), [],
+                   ["bad.npz holds no demonstrations"]),
 }
 
 
@@ -190,4 +193,4 @@ def test_import_errors_are_one_clear_line(case, tmp_path, capsys):
     assert lines[0].startswith("cogail import: error: ")
     for n in needles:
         assert n in lines[0], (n, lines[0])
-    assert not out.exists()
+    assert not out.exists() and not list(tmp_path.glob("out.hdf5*"))  # no temporary file left either

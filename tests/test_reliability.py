@@ -289,3 +289,41 @@ def test_background_saver_queues_in_order_and_reports_errors(tmp_path, monkeypat
     with pytest.raises(OSError, match="disk full"):  # or at wait
         saver.wait()
     saver.close()
+
+
+def test_a_failed_restore_s_pending_reads_print_nothing(capsys):
+    """What TensorStore reads left pending by a failed restore print when they end, from their own threads and in
+    pieces ("Traceback ...", asyncio's frames, "RuntimeError: Event loop is closed"), is dropped; another
+    thread's own lines and the main thread's output pass, whole and in order."""
+    import threading
+
+    from cogail_jax.runtime import checkpoint as ckpt
+
+    import sys
+
+    real = sys.stderr
+    quiet = ckpt._QuietStderr(real)
+    noise = ["Traceback (most recent call last):\n", '  File "/usr/lib/python3.11/asyncio/base_events.py", line 806, ',
+             "in call_soon_threadsafe\n", "    self._check_closed()\n",
+             '  File "/usr/lib/python3.11/asyncio/base_events.py", line 519, in _check_closed\n',
+             "    raise RuntimeError('Event loop is closed')\n", "RuntimeError: Event loop is closed\n"]
+
+    def pending_read():
+        for piece in noise:
+            quiet.write(piece)
+
+    def other():
+        quiet.write("warning: ")
+        quiet.write("something else\n")
+        quiet.write("no newline yet")
+        quiet.flush()
+
+    threads = [threading.Thread(target=pending_read) for _ in range(4)] + [threading.Thread(target=other)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    quiet.write("eval: 50%\r")  # the main thread's progress bar: straight through
+    quiet.flush()
+    err = capsys.readouterr().err
+    assert err == "warning: something else\nno newline yeteval: 50%\r", repr(err)

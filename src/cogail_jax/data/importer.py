@@ -397,7 +397,7 @@ def _read_npz(path: Path, env, mapping: dict) -> list[_Demo]:
                 raise DatasetError(f"{where}: {p!r} (for {fieldname}) has shape {a.shape}: give an object array of "
                                    f"per-demo (T, dim) arrays, or a padded (N, T_max, dim) array with 'length'")
             else:
-                items = list(a.reshape(a.shape[0], -1)) if a.ndim >= 1 else [a]
+                items = [a] if a.ndim == 0 else list(a.reshape(a.shape[0], -1)) if a.size else [x for x in a]
             lists.append(items)
         n = {len(x) for x in lists}
         if len(n) > 1:

@@ -33,7 +33,7 @@ from ..runtime import checkpoint as ckpt
 from ..data import io as data
 from ..eval import rollouts
 from ..eval import protocol
-from ..algo.config import ConfigError, TrainConfig
+from ..algo.config import TrainConfig
 from .runs import RunError
 from . import controls
 from .controls import (HELP, HOST, KEYS_2D, KEYS_6D, discrete_action, human_action, human_position,  # noqa: F401
@@ -52,14 +52,10 @@ def robot_key(env, rng: np.random.Generator) -> tuple:
 
 # ---------------------------------------------------------------------------------------------- runs
 def read_run_config(run_dir: str | Path, task: str | None = None) -> TrainConfig:
-    """The run's config; ``RunError`` if ``run_dir`` is not a run or belongs to another task than ``task``."""
+    """The run's config; ``ConfigError`` if ``run_dir`` is not a run or its config is damaged (``TrainConfig.load``),
+    ``RunError`` if it belongs to another task than ``task``."""
     run_dir = Path(run_dir)
-    if not (run_dir / "config.json").exists():
-        raise RunError(f"{run_dir} is not a run directory (no config.json): pass the --run of a training run")
-    try:
-        cfg = TrainConfig.load(run_dir / "config.json")
-    except (json.JSONDecodeError, ConfigError, TypeError) as e:
-        raise RunError(f"{run_dir}/config.json cannot be read ({e}): pass the --run of a training run")
+    cfg = TrainConfig.load(run_dir / "config.json")
     if task is not None and cfg.task != task:
         raise RunError(f"{run_dir} holds a {cfg.task} checkpoint, not {task}: pass --task {cfg.task} or a {task} run")
     return cfg

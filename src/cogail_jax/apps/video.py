@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import jax
@@ -40,9 +39,7 @@ def _run_rollouts(run: Path, num: int, steps: int | None, task: str | None = Non
     from ..data import io as data
     from ..data import manifest, sets
 
-    if not (run / "config.json").exists():
-        raise runs.RunError(f"{run} is not a run directory (no config.json): pass the --run of a training run")
-    cfg = TrainConfig.load(run / "config.json")
+    cfg = TrainConfig.load(run / "config.json")  # no run, or a damaged config: one sentence
     if task and task != cfg.task:
         raise runs.RunError(f"{run} holds a {cfg.task} checkpoint, not {task}: drop --task or pass a {task} run")
     s = runs.build(cfg, need_heldout=False, run_dir=run, need_demos=False)  # no demonstration file is needed
@@ -125,19 +122,13 @@ def write_video(task: str, out: str | Path, run: str | Path | None = None, num: 
 
     import cogail_envs
 
+    from ..runtime.paths import output_file
     from .runs import RunError
 
     out = Path(out)
     if out.suffix.lower() not in (".gif", ".mp4"):
         raise RunError(f"--out {out}: a video is written as .gif or .mp4: name the file so")
-    if out.is_dir():
-        raise RunError(f"--out {out} is a folder: pass a file name, e.g. {out / 'rollouts.gif'}")
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise RunError(f"--out {out}: cannot make its folder ({e.strerror}): pass a path you can write")
-    if not os.access(out.parent, os.W_OK):
-        raise RunError(f"--out {out}: cannot write in {out.parent}: pass a path you can write")
+    output_file(out, "--out", "rollouts.gif")
     if run is None:
         env = cogail_envs.make_env(task)
         scripted = cogail_envs.team_of(env)

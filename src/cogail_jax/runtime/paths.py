@@ -13,8 +13,8 @@ def output_dir(path: str | os.PathLike, option: str, fix: str = "pass a folder y
     """``path`` as a folder to write in, made if missing; ``OutputError`` naming ``option`` and ending in ``fix``
     if it is a file, lies under a file, or cannot be made or written."""
     path = Path(path)
-    if path.exists() and not path.is_dir() or any(p.exists() and not p.is_dir() for p in path.parents):
-        raise OutputError(f"{option} {path} is not a folder (it is, or lies under, a file): {fix}")
+    if any(p.exists() and not p.is_dir() for p in (path, *path.parents)):
+        raise OutputError(f"{option} {path} is a file or lies under one: {fix}")
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -26,17 +26,9 @@ def output_dir(path: str | os.PathLike, option: str, fix: str = "pass a folder y
 
 def output_file(path: str | os.PathLike, option: str, example: str) -> Path:
     """``path`` as a file to write, its folder made if missing; ``OutputError`` naming ``option`` if it is a folder,
-    or its folder lies under a file or cannot be made or written. ``example``: a file name to suggest in a folder."""
+    or its folder is a file, lies under one or cannot be made or written. ``example``: a file name to suggest."""
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"{option} {path} is a folder: pass a file name, e.g. {path / example}")
-    parent = path.parent
-    if parent.exists() and not parent.is_dir() or any(p.exists() and not p.is_dir() for p in parent.parents):
-        raise OutputError(f"{option} {path} lies under a file, not a folder: pass a path you can write")
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise OutputError(f"{option} {path}: cannot make its folder ({e.strerror}): pass a path you can write") from None
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise OutputError(f"{option} {path}: cannot write in {parent}: pass a path you can write")
+    output_dir(path.parent, f"{option} {path}: its folder", "pass a path you can write")
     return path

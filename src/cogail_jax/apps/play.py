@@ -358,8 +358,8 @@ def open_study(runs: list[str | Path], task: str | None = None, port: int = 8765
     hz = float(hz or cogail_envs.get_task(task).play_hz)
     if not math.isfinite(hz) or not 0 < hz <= 240:
         raise RunError(f"--hz {hz:g} is not a usable number of steps per second: pass one above 0, at most 240")
-    if seed < 0:
-        raise RunError(f"--seed {seed}: pass 0 or more")
+    if not 0 <= seed < 2 ** 32:
+        raise RunError(f"--seed {seed}: a seed is an integer from 0 to {2 ** 32 - 1}")
     trials = Path(trials) if trials else Path(runs[0]) / "trials.hdf5"
     check_trials_file(trials, runs, cfgs)
     data.check_appendable(trials, env)

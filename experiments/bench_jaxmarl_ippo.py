@@ -20,35 +20,12 @@ import argparse
 import importlib.util
 import json
 import math
-import os
 import sys
 import time
 import types
 from pathlib import Path
 
-
-def count(s: str) -> int:
-    """An argparse ``type``: a whole number of 1 or more."""
-    try:
-        n = int(s)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"give a whole number of 1 or more, not {s!r}")
-    return n
-
-
-def check_out(p: argparse.ArgumentParser, opt: str, path: Path) -> None:
-    """``p.error`` unless ``path`` is a file this process can write (its folder may still have to be made)."""
-    if path.is_dir():
-        p.error(f"{opt} {path} is a folder: give a file name, e.g. {path / 'ippo.json'}")
-    folder = path.absolute().parent
-    while not folder.exists():
-        folder = folder.parent
-    if not folder.is_dir():
-        p.error(f"{opt} {path}: {folder} is a file, not a folder: give a path you can write")
-    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        p.error(f"{opt} {path}: cannot write there: give a path you can write")
+from cogail_jax.apps.options import file_out, positive
 
 
 def _stand_ins() -> None:
@@ -107,9 +84,10 @@ def main(argv=None) -> int:
     p.add_argument("--config", type=Path, default=None,
                    help="its YAML config (default: config/ippo_ff_overcooked.yaml beside the script)")
     p.add_argument("--layout", default="cramped_room", help="the kitchen (JaxMARL's overcooked_layouts name)")
-    p.add_argument("--seeds", type=count, default=20, help="seeds vmapped in one call (the script's main: 20)")
+    p.add_argument("--seeds", type=positive, default=20, help="seeds vmapped in one call (the script's main: 20)")
     p.add_argument("--total-steps", type=float, default=1e6, help="TOTAL_TIMESTEPS per seed (the config: 5e6)")
-    p.add_argument("--out", type=Path, default=None, help="write the figures here as JSON")
+    p.add_argument("--out", type=lambda text: Path(file_out("ippo.json")(text)), default=None,
+                   help="write the figures here as JSON")
     a = p.parse_args(argv)
     if not a.script.is_file() or a.script.suffix != ".py":
         p.error(f"--script {a.script} is not a Python file: pass the path of JaxMARL's "
@@ -132,8 +110,6 @@ def main(argv=None) -> int:
     if not math.isfinite(a.total_steps) or a.total_steps < one_update:
         p.error(f"--total-steps {a.total_steps:g}: give at least one update's steps, {one_update} (NUM_ENVS x "
                 f"NUM_STEPS of {config_file.name})")
-    if a.out is not None:
-        check_out(p, "--out", a.out)
     _stand_ins()
     import jax
 

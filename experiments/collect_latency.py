@@ -21,32 +21,9 @@ import threading
 import time
 from pathlib import Path
 
+from cogail_jax.apps.options import file_out, positive
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-
-
-def count(s: str) -> int:
-    """An argparse ``type``: a whole number of 1 or more."""
-    try:
-        n = int(s)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"give a whole number of 1 or more, not {s!r}")
-    return n
-
-
-def check_out(p: argparse.ArgumentParser, opt: str, path: str) -> None:
-    """``p.error`` unless ``path`` is a file this process can write (its folder may still have to be made)."""
-    path = Path(path)
-    if path.is_dir():
-        p.error(f"{opt} {path} is a folder: give a file name, e.g. {path / 'bench.hdf5'}")
-    folder = path.absolute().parent
-    while not folder.exists():
-        folder = folder.parent
-    if not folder.is_dir():
-        p.error(f"{opt} {path}: {folder} is a file, not a folder: give a path you can write")
-    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        p.error(f"{opt} {path}: cannot write there: give a path you can write")
 
 
 def client_loop(client, keys_cycle, steps: int, every: int, hz: float, out: dict) -> None:
@@ -92,13 +69,13 @@ def client_loop(client, keys_cycle, steps: int, every: int, hz: float, out: dict
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--task", default="fetchq")
-    p.add_argument("--steps", type=count, default=300, help="steps to measure (after warm-up)")
+    p.add_argument("--steps", type=positive, default=300, help="steps to measure (after warm-up)")
     p.add_argument("--hz", type=float, default=None, help="steps per second (default: the task's)")
-    p.add_argument("--every", type=count, default=3, help="frames between key presses")
+    p.add_argument("--every", type=positive, default=3, help="frames between key presses")
     p.add_argument("--url", default=None, help="a running `cogail collect` (default: serve one here)")
     p.add_argument("--code-human", default=None)
     p.add_argument("--code-robot", default=None)
-    p.add_argument("--out", default=None, help="episodes file (default: a temporary file)")
+    p.add_argument("--out", type=file_out("bench.hdf5"), default=None, help="episodes file (default: a temporary file)")
     p.add_argument("--no-opengl", action="store_true",
                    help="draw an MJX task's frames with the fallback used on machines without OpenGL")
     a = p.parse_args(argv)
@@ -107,8 +84,6 @@ def main(argv=None) -> int:
             p.error(f"--url {a.url}: give the table's address, e.g. http://127.0.0.1:8766")
         if given := [o for o, v in (("--out", a.out), ("--hz", a.hz)) if v is not None]:
             p.error(f"{given[0]}: the table at --url records and paces its own episodes: drop {given[0]} or --url")
-    elif a.out is not None:
-        check_out(p, "--out", a.out)
     import cogail_envs
 
     try:

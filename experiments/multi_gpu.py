@@ -5,49 +5,23 @@ one device at the same per-device batch (one seed of --envs environments per dev
 """
 import argparse
 import json
-import os
 from pathlib import Path
 
-
-def count(s: str) -> int:
-    """An argparse ``type``: a whole number of 1 or more."""
-    try:
-        n = int(s)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"give a whole number of 1 or more, not {s!r}")
-    return n
-
-
-def check_out(p: argparse.ArgumentParser, opt: str, path: str) -> None:
-    """``p.error`` unless ``path`` is a file this process can write (its folder may still have to be made)."""
-    path = Path(path)
-    if path.is_dir():
-        p.error(f"{opt} {path} is a folder: give a file name, e.g. {path / 'multi_gpu.json'}")
-    folder = path.absolute().parent
-    while not folder.exists():
-        folder = folder.parent
-    if not folder.is_dir():
-        p.error(f"{opt} {path}: {folder} is a file, not a folder: give a path you can write")
-    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        p.error(f"{opt} {path}: cannot write there: give a path you can write")
+from cogail_jax.apps.options import file_out, positive
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--task", default="fetchq")
-    p.add_argument("--envs", type=count, default=8192)
-    p.add_argument("--unroll", type=count, default=94)
-    p.add_argument("--calls", type=count, default=3)
-    p.add_argument("--updates-per-call", type=count, default=4, help="updates per jitted call (dispatch amortised)")
-    p.add_argument("--out", help="JSON output path")
+    p.add_argument("--envs", type=positive, default=8192)
+    p.add_argument("--unroll", type=positive, default=94)
+    p.add_argument("--calls", type=positive, default=3)
+    p.add_argument("--updates-per-call", type=positive, default=4, help="updates per jitted call (dispatch amortised)")
+    p.add_argument("--out", type=file_out("multi_gpu.json"), help="JSON output path")
     p.add_argument("--only-multi", action="store_true", help="skip the one-device row (diagnosing the sharded run)")
     a = p.parse_args(argv)
     if a.out and a.only_multi:
         p.error("--out: --only-multi writes no file (it has no speed-up to record): drop --out or --only-multi")
-    if a.out:
-        check_out(p, "--out", a.out)
     import cogail_envs
     import jax
 

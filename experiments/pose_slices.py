@@ -10,50 +10,26 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
 
-
-def count(s: str) -> int:
-    """An argparse ``type``: a whole number of 1 or more."""
-    try:
-        n = int(s)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"give a whole number of 1 or more, not {s!r}")
-    return n
-
-
-def check_out(p: argparse.ArgumentParser, opt: str, path: str) -> None:
-    """``p.error`` unless ``path`` is a file this process can write (its folder may still have to be made)."""
-    path = Path(path)
-    if path.is_dir():
-        p.error(f"{opt} {path} is a folder: give a file name, e.g. {path / 'pose_slices.json'}")
-    folder = path.absolute().parent
-    while not folder.exists():
-        folder = folder.parent
-    if not folder.is_dir():
-        p.error(f"{opt} {path}: {folder} is a file, not a folder: give a path you can write")
-    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        p.error(f"{opt} {path}: cannot write there: give a path you can write")
+from cogail_jax.apps.options import file_out, positive
 
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--task", required=True)
-    p.add_argument("--num", type=count, default=16)
+    p.add_argument("--num", type=positive, default=16)
     p.add_argument("--seed", type=int, default=900)
-    p.add_argument("--batch", type=count, default=None)
+    p.add_argument("--batch", type=positive, default=None)
     p.add_argument("--slices", default="", help="comma-separated axes (default: the team's)")
     p.add_argument("--validate", action="store_true", help="also re-simulate each episode open-loop")
     p.add_argument("--coplay", action="store_true",
                    help="also the scripted human of each set with the co-play scripted robot (observables only)")
-    p.add_argument("--out", default=None)
+    p.add_argument("--out", type=file_out("pose_slices.json"), default=None)
     a = p.parse_args(argv)
     import cogail_envs
     from cogail_envs.variations import POSE_AXES, pose_slice, slice_name
@@ -81,8 +57,6 @@ def main(argv=None) -> None:
             p.error(f"--coplay: {a.task}'s team has no scripted human and robot to play apart: leave --coplay out")
         if 2 * a.num > coplay.REF_STRIDE:
             p.error(f"--num {a.num}: with --coplay give at most {coplay.REF_STRIDE // 2} episodes per set")
-    if a.out:
-        check_out(p, "--out", a.out)
     env = cogail_envs.make_env(a.task)
     sets = [("in-range", 0)] + [(slice_name(x), pose_slice(x)) for x in axes]
     w = resolve_mix(env, "uniform")

@@ -20,25 +20,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 
+from cogail_jax.apps.options import folder_out, positive
+
 READS = ("both", "object", "world")
 HUMANS = ("test", "test+varied")
-
-
-def count(s: str) -> int:
-    """An argparse ``type``: a whole number of 1 or more."""
-    try:
-        n = int(s)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"give a whole number of 1 or more, not {s!r}")
-    return n
 
 
 def check_options(p: argparse.ArgumentParser, a: argparse.Namespace) -> tuple[list[str], list[int]]:
@@ -68,17 +58,6 @@ def check_options(p: argparse.ArgumentParser, a: argparse.Namespace) -> tuple[li
     if a.episodes * coplay.PROXY_EPISODES > coplay.REF_STRIDE:
         p.error(f"--episodes {a.episodes}: give at most {coplay.REF_STRIDE // coplay.PROXY_EPISODES} (the proxy plays "
                 f"{coplay.PROXY_EPISODES} times as many, and co-play plays at most {coplay.REF_STRIDE} per partner)")
-    out = Path(a.out)
-    if out.exists() and not out.is_dir():
-        p.error(f"--out {out} is a file: give a folder for proxy_study.json and proxy_study.md")
-    folder = out.absolute()
-    while not folder.exists():
-        folder = folder.parent
-    if not folder.is_dir():
-        p.error(f"--out {out}: {folder} is a file, not a folder: give a folder you can write in")
-    if not os.access(folder, os.W_OK) or any(
-            (out / f).exists() and not os.access(out / f, os.W_OK) for f in ("proxy_study.json", "proxy_study.md")):
-        p.error(f"--out {out}: cannot write there: give a folder you can write in")
     return tasks, keys
 
 
@@ -204,10 +183,10 @@ def main(argv=None):
     p.add_argument("--reads", default=",".join(READS), help=f"what the proxy reads, comma-separated of {READS}")
     p.add_argument("--humans", default=",".join(HUMANS), help=f"what it learns from, comma-separated of {HUMANS}")
     p.add_argument("--keys", default="0,1,2", help="the proxy's initial keys (co-play's is 0)")
-    p.add_argument("--episodes", type=count, default=64,
+    p.add_argument("--episodes", type=positive, default=64,
                    help="co-play episodes per partner, as co-play's; the proxy plays PROXY_EPISODES times as many")
-    p.add_argument("--steps", type=count, default=None, help="proxy training steps (default: co-play's)")
-    p.add_argument("--out", default="results/proxy_study", help="folder for proxy_study.json / .md")
+    p.add_argument("--steps", type=positive, default=None, help="proxy training steps (default: co-play's)")
+    p.add_argument("--out", type=folder_out, default="results/proxy_study", help="folder for proxy_study.json / .md")
     a = p.parse_args(argv)
     reads, humans = a.reads.split(","), a.humans.split(",")
     for name, got, ok in (("--reads", reads, READS), ("--humans", humans, HUMANS)):

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from ..runtime.paths import OutputError, output_dir, output_file
+
 
 def positive(text: str) -> int:
     """A positive integer; 1e6 is read as 1000000, 2.5 is refused."""
@@ -52,3 +54,23 @@ def seeds(text: str) -> tuple[int, ...]:
     for v in values:
         seed(str(v))
     return values
+
+
+def file_out(example: str):
+    """An argparse ``type``: a file to write, checked at once (``runtime.paths.output_file``); ``example`` is the file
+    name suggested for a folder, e.g. ``type=file_out("results.json")``."""
+    def check(text: str) -> str:
+        try:
+            return str(output_file(text, "", example))
+        except OutputError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+
+    return check
+
+
+def folder_out(text: str) -> str:
+    """An argparse ``type``: a folder to write in, checked at once (``runtime.paths.output_dir``)."""
+    try:
+        return str(output_dir(text, ""))
+    except OutputError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None

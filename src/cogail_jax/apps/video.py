@@ -152,6 +152,7 @@ def write_video(task: str, out: str | Path, run: str | Path | None = None, num: 
     else:  # interpolation rollouts on top, replays below
         env, rows = _run_rollouts(Path(run), num, steps, task)
         frames = [np.concatenate(r, axis=0) for r in zip(*(_frames(env, st, num, T) for st, T in rows))]
+    out.parent.mkdir(parents=True, exist_ok=True)
     if out.suffix.lower() == ".mp4":
         imageio.mimwrite(out, frames, fps=fps, macro_block_size=1)
     else:

@@ -1,4 +1,5 @@
-"""Where a command writes what it makes: checked before the work starts, so that nothing is lost at its end."""
+"""Where a command writes what it makes: checked before the work starts, so that nothing is lost at its end. The
+checks make nothing: the folders a path needs are made when it is written."""
 from __future__ import annotations
 
 import os
@@ -9,26 +10,30 @@ class OutputError(ValueError):
     """A path a command was told to write that it cannot; the message names it and what to do."""
 
 
+def _writable_from(path: Path, option: str, fix: str) -> None:
+    """``OutputError`` unless the nearest existing folder at or above ``path`` is a folder this process can write."""
+    there, name = path.absolute(), f"{option} {path}".strip()
+    while not there.exists():
+        there = there.parent
+    if not there.is_dir():
+        raise OutputError(f"{name} {'is' if there == path.absolute() else f'lies under {there},'} a file: {fix}")
+    if not os.access(there, os.W_OK | os.X_OK):
+        raise OutputError(f"{name}: cannot write in {there}: {fix}")
+
+
 def output_dir(path: str | os.PathLike, option: str, fix: str = "pass a folder you can write") -> Path:
-    """``path`` as a folder to write in, made if missing; ``OutputError`` naming ``option`` and ending in ``fix``
-    if it is a file, lies under a file, or cannot be made or written."""
+    """``path`` as a folder to write in (made when written); ``OutputError`` naming ``option`` and ending in
+    ``fix`` if it is a file, lies under one, or cannot be written."""
     path = Path(path)
-    if any(p.exists() and not p.is_dir() for p in (path, *path.parents)):
-        raise OutputError(f"{option} {path} is a file or lies under one: {fix}")
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise OutputError(f"{option} {path}: cannot make the folder ({e.strerror}): {fix}") from None
-    if not os.access(path, os.W_OK | os.X_OK):
-        raise OutputError(f"{option} {path}: cannot write in it: {fix}")
+    _writable_from(path, option, fix)
     return path
 
 
 def output_file(path: str | os.PathLike, option: str, example: str) -> Path:
-    """``path`` as a file to write, its folder made if missing; ``OutputError`` naming ``option`` if it is a folder,
-    or its folder is a file, lies under one or cannot be made or written. ``example``: a file name to suggest."""
+    """``path`` as a file to write (its folders made when written); ``OutputError`` naming ``option`` if it is a
+    folder, lies under a file, or cannot be written. ``example``: a file name to suggest in a folder."""
     path = Path(path)
     if path.is_dir():
-        raise OutputError(f"{option} {path} is a folder: pass a file name, e.g. {path / example}")
-    output_dir(path.parent, f"{option} {path}: its folder", "pass a path you can write")
+        raise OutputError(f"{option} {path} is a folder: pass a file name, e.g. {path / example}".strip())
+    _writable_from(path, option, "pass a path you can write")
     return path

@@ -1,6 +1,5 @@
 """The experiment scripts' options: a bad one ends in one sentence naming it and the fix, before anything runs."""
-import os
-import subprocess
+import importlib.util
 import sys
 from pathlib import Path
 
@@ -39,7 +38,9 @@ STUB_CONFIG = '"NUM_ENVS": 16\n"NUM_STEPS": 128\n"ENV_KWARGS":\n  "layout": "coo
      "--total-steps 100: give at least one update's steps, 2048"),
     ("bench_jaxmarl_ippo.py", ["--script", "{stub}", "--layout", "nope"], "--layout nope: no such kitchen"),
 ])
-def test_bad_options_end_in_one_sentence_before_anything_runs(script, args, needle, tmp_path):
+def test_bad_options_end_in_one_sentence_before_anything_runs(script, args, needle, tmp_path, monkeypatch, capsys):
+    """Each script's ``main`` in this process (a script's start-up would cost a Python and JAX each time), as
+    ``python experiments/SCRIPT ARGS`` runs it: argparse's exit 2 with the one line last."""
     (tmp_path / "DIR").mkdir()
     (tmp_path / "FILE").write_text("")
     (tmp_path / "ippo.py").write_text(STUB)
@@ -48,10 +49,26 @@ def test_bad_options_end_in_one_sentence_before_anything_runs(script, args, need
     paths = {"dir": tmp_path / "DIR", "file": tmp_path / "FILE", "missing": tmp_path / "missing",
              "stub": tmp_path / "ippo.py"}
     args, needle = [x.format(**paths) for x in args], needle.format(**paths)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("COGAIL_DATA", str(tmp_path / "data"))
+    monkeypatch.setattr(sys, "argv", [str(EXPERIMENTS / script), *args])  # argparse names the script from it
     before = sorted(tmp_path.rglob("*"))
-    r = subprocess.run([sys.executable, str(EXPERIMENTS / script), *args], capture_output=True, text=True,
-                       timeout=120, cwd=tmp_path, env={**os.environ, "COGAIL_DATA": str(tmp_path / "data")})
-    assert "Traceback" not in r.stdout + r.stderr, r.stderr
-    last = r.stderr.strip().splitlines()[-1]
-    assert r.returncode == 2 and last.startswith(f"{script}: error: ") and needle in last, r.stderr
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        _script(script).main(args)
+    err = capsys.readouterr().err
+    last = err.strip().splitlines()[-1]
+    assert e.value.code == 2 and last.startswith(f"{script}: error: ") and needle in last, err
     assert sorted(tmp_path.rglob("*")) == before  # checked first: no data made, nothing compiled or started
+
+
+_SCRIPTS = {}
+
+
+def _script(name: str):
+    """The experiment script ``name``, imported once per process."""
+    if name not in _SCRIPTS:
+        spec = importlib.util.spec_from_file_location(f"experiments_{name[:-3]}", EXPERIMENTS / name)
+        _SCRIPTS[name] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(_SCRIPTS[name])
+    return _SCRIPTS[name]

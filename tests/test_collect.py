@@ -516,6 +516,8 @@ def test_collect_help_and_bad_options(tmp_path, capsys):
         f.attrs["task"] = "handover"
     for args, needle in ((["--out", str(other)], "holds demonstrations of task 'handover', not 'fetchq'"),
                          (["--hz", "0"], "--hz 0.0 is not a usable number"),
+                         (["--leave", "0"], "--leave 0.0 is not a usable number of seconds: pass a positive one"),
+                         (["--gap", "-1"], "--gap -1.0 is not a usable number of seconds: pass 0 or more"),
                          (["--task", "nope"], "unknown task 'nope'")):
         argv = ["collect", "--task", "fetchq", "--port", "0", *args]
         assert cli.main(argv) == 2

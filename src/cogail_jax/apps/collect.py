@@ -557,9 +557,10 @@ def open_table(task: str, out: str | Path | None = None, port: int = 8766, lan: 
     out = Path(out) if out else data.data_dir() / f"{env.name}_people.hdf5"
     data.check_appendable(out, env)
     for name, v in (("--hz", hz), ("--gap", gap), ("--hold", hold), ("--leave", leave)):
-        if v is not None and (not math.isfinite(v) or v < 0 or (name == "--hz" and v == 0)):
+        positive = name in ("--hz", "--leave")  # 0 steps a second, or a seat left at once, cannot run
+        if v is not None and (not math.isfinite(v) or v < 0 or (positive and v == 0)):
             raise RunError(f"{name} {v} is not a usable number of {'steps per second' if name == '--hz' else 'seconds'}:"
-                           f" pass a positive one")
+                           f" pass {'a positive one' if positive else '0 or more'}")
     hz = float(hz or spec.play_hz)
     if hz > 240:
         raise RunError(f"--hz {hz:g} is faster than a page can show: pass at most 240")

@@ -77,6 +77,9 @@ class CollabEnv(Env):
     # that swaps the agents' own features): a task that has it can seat the robot in either place, and its people's
     # recordings train BC models of both players (the field's protocol, cogail_jax.eval.field)
     seat_view: Sequence[int] = ()
+    # ``person_features(obs) -> (F,)``: hand-made features of an observation that the field's behaviour clones of
+    # people read instead of the observation itself (cogail_jax.eval.field); None: they read the observation
+    person_features = None
     object_frame_dims: Sequence[int] = ()
     orientation_dims: Sequence[int] = ()
 

@@ -12,9 +12,10 @@ import pytest
 import cogail_envs
 from cogail_jax.algo.config import TrainConfig
 from cogail_jax.data import recorded
-from cogail_jax.eval import field
+from cogail_jax.eval import coplay, field
 
 pytest.importorskip("pandas")
+from cogail_envs.overcooked.features import FEATURES  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -118,6 +119,8 @@ def test_two_bc_players_play_the_game(people):
     env, files = people
     a = _first(field.split_arrays(files["validation"], env), 2)  # one window in both seats: 1600 samples
     x, y, _ = field.seat_samples(env, a["obs"], a["ah"], a["ar"], a["length"])
+    # the models read the task's hand-made features of each view (and their change over 1 and 3 steps), not its grid
+    assert x.shape[1] == (1 + len(coplay.PROXY_LAGS)) * FEATURES
     bc = field.fit_bc(x, y, 200, 0)
     out = {}
     play = field.make_play(env, None, None, ("bc", "bc"))
@@ -150,7 +153,7 @@ def test_bc_models_are_fitted_once_per_splits(few_people, monkeypatch, tmp_path)
     for a, b in zip(jax.tree.leaves(first.h_proxy), jax.tree.leaves(again.h_proxy)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     swapped = {**s.files, "validation": s.files["train"], "train": s.files["validation"]}
-    assert field.models_path(swapped, n) != first.path
+    assert field.models_path(swapped, n, env) != first.path
 
 
 def test_cogail_data_fits_the_models_a_run_then_reads(few_people, monkeypatch, tmp_path):

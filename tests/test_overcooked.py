@@ -108,6 +108,49 @@ def test_start_cells_and_the_jaxmarl_start(env):
         assert a.dtype == b.dtype and np.array_equal(a, b), name
 
 
+def test_person_features_are_overcooked_ai_s(env):
+    """The hand-made features the field's BC models read (features.py), on the cramped room: the human at (1, 2)
+    facing left, the robot at (3, 1) facing up; then the human holding an onion beside a pot with one onion."""
+    from cogail_envs.overcooked import features
+
+    feat = jax.jit(env.person_features)
+    game = np.array(env.sample_init(jax.random.PRNGKey(0)))[:-1]
+    game[:6] = [1, 2, 3, 1, 3, 0]  # cells (x0, y0, x1, y1), facings: left, up
+    x = np.asarray(feat(env.reset_from(_seated(game)).obs))
+    assert x.shape == (features.FEATURES,)
+    human, robot, rest = x[:30], x[30:60], x[60:]
+    np.testing.assert_array_equal(human[:7], [0, 0, 0, 1, 0, 0, 0])  # facing left, empty-handed
+    # nearest onion pile (0, 1), empty pot (2, 0), no pot with onions, cooking or ready, plate pile (1, 3), no loose
+    # soup, serving spot (3, 3); the counter it faces is empty; walls below (the plate pile) and to the left
+    np.testing.assert_array_equal(human[7:25], [-1, -1, 1, -2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 2, 1])
+    np.testing.assert_array_equal(human[25:], [1, 0, 1, 0, 1])
+    np.testing.assert_array_equal(robot[:11], [1, 0, 0, 0, 0, 0, 0, 1, 0, -1, -1])  # the pile beside it, the pot
+    np.testing.assert_array_equal(rest, [2, -1, 1, 2])  # the robot from the human; the human's cell
+    game[6], game[8] = 1, 1  # the human holds an onion; the pot holds one
+    x = np.asarray(feat(env.reset_from(_seated(game)).obs))
+    np.testing.assert_array_equal(x[4:13], [1, 0, 0, 0, 0, 0, 0, 1, -2])  # no "nearest onion", no empty pot
+    # the robot's view: its own features first
+    y = np.asarray(feat(env.reset_from(_seated(game)).obs[np.asarray(env.seat_view)]))
+    np.testing.assert_array_equal(y[:30], x[30:60])
+    np.testing.assert_array_equal(y[30:60], x[:30])
+    np.testing.assert_array_equal(y[60:], [-2, 1, 3, 1])
+
+
+def test_walking_costs_go_around_counters():
+    """Nearest by the floor path to a cell beside the target: around a counter, and never through one."""
+    from cogail_envs.overcooked import features
+
+    F, X = kt.FLOOR, kt.COUNTER
+    cells = np.array([[F, X, F],
+                      [F, X, F],
+                      [F, F, F]])
+    cost = features.walking_costs(cells)
+    assert cost[0, 2] == 5  # (0, 0) to (2, 0): beside it is (2, 1)... reached around the counters' column
+    assert cost[0, 1] == 0  # a counter beside the floor cell it starts on
+    walled = features.walking_costs(np.array([[F, X, F, F]]))
+    assert walled[0, 3] >= features._FAR and walled[2, 3] == 0  # the other side of a counter is out of reach
+
+
 def test_classify_strategy_thresholds(env):
     def label(oh, orr, dh, dr, sh=None, sr=None, soups=1.0):
         sh = dh if sh is None else sh

@@ -47,6 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..base import CollabEnv, State
+from . import features
 from . import kitchen as kt
 
 NUM_ACTIONS = 6
@@ -89,6 +90,7 @@ class Overcooked(CollabEnv):
         self.seat_view = tuple(int(i) for i in np.arange(self.observation_size).reshape(self.obs_grid)[..., channels]
                                .reshape(-1))
         self._game = kt.jaxmarl_game(kitchen, self.max_episode_steps)
+        self.person_features = features.make_featurize(self.geometry.cells)  # what the field's BC models read
 
     @property
     def observation_size(self) -> int:

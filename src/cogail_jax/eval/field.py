@@ -14,14 +14,16 @@ per seed and seat on an accelerator; reward (the task's, 20 per soup on Overcook
 * **H_proxy's own quality**: its action accuracy on held-out test episodes (a copy fitted on the other 80 % of the
   test episodes), and its reward with itself and with that copy of itself.
 
-Every BC model is an MLP (``coplay.PROXY_HIDDEN``) on the state as its player sees it and its change over the last 1
-and 3 steps, fitted by cross-entropy, drawing its choices from its categorical (as the field's BC agents do); all
+Every BC model is an MLP (``coplay.PROXY_HIDDEN``) on the task's hand-made features of the state as its player sees
+it (``env.person_features``, as the field's BC models read overcooked_ai's; the state itself where a task has none)
+and their change over the last 1 and 3 steps, fitted by cross-entropy, drawing its choices from its categorical (as the field's BC agents do); all
 of them from fixed keys, so the same data give the same models. One compiled program per pair of agent kinds
 (robot or BC model in each seat), the seeds vmapped.
 """
 from __future__ import annotations
 
 import hashlib
+import inspect
 import json
 import math
 import os
@@ -57,6 +59,16 @@ def sizes() -> dict:
 
 
 # ------------------------------------------------------------------------------------------------ BC models
+def person_view(env, obs: jax.Array) -> jax.Array:
+    """What the BC models of people read of observations ``obs`` (..., D): the task's hand-made features where it has
+    them (``env.person_features``, as the field's BC models read overcooked_ai's), else the observations."""
+    fn = getattr(env, "person_features", None)
+    if fn is None:
+        return obs
+    flat = obs.reshape(-1, obs.shape[-1])
+    return jax.vmap(fn)(flat).reshape(*obs.shape[:-1], -1)
+
+
 def seat_samples(env, obs, ah, ar, length) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Both players' steps of a split as BC samples: player 0's actions ``ah`` on the state as recorded, player 1's
     ``ar`` on the state as it sees it (``seat_view``). Returns the inputs (``coplay.proxy_inputs``), the one-hot
@@ -65,7 +77,9 @@ def seat_samples(env, obs, ah, ar, length) -> tuple[np.ndarray, np.ndarray, np.n
     H = max(coplay.PROXY_LAGS)
     xs, ys, eps = [], [], []
     valid = np.arange(obs.shape[1])[None] < length[:, None]
+    views = jax.jit(lambda o: person_view(env, o))
     for view, act in ((obs, ah), (obs[..., np.asarray(env.seat_view)], ar)):
+        view = np.asarray(views(jnp.asarray(view)))
         padded = np.concatenate([np.repeat(view[:, :1], H, 1), view], 1)
         hist = np.stack([padded[:, H - j:H - j + view.shape[1]] for j in range(H, -1, -1)], 2)
         xs.append(np.asarray(coplay.proxy_inputs(jnp.asarray(hist)))[valid])
@@ -179,7 +193,7 @@ def make_play(env, cfg, nets, kinds: tuple[str, str], other: tuple | None = None
                     a = jax.vmap(acts[slot], in_axes=(None, 0, 0, 0))(agent, view, prev[:, 1 - slot], k)
                 else:  # its own view
                     view = hist if slot == 0 else hist[..., perm]
-                    a = jax.vmap(lambda h, kk: coplay.proxy_action(agent, h, True, kk))(
+                    a = jax.vmap(lambda h, kk: coplay.proxy_action(agent, person_view(env, h), True, kk))(
                         view[:, -(max(coplay.PROXY_LAGS) + 1):], k)
                 out.append(a)
             nxt = jax.vmap(env.step)(state, jnp.concatenate(out, -1))
@@ -232,10 +246,10 @@ def _stack(trees: list):
 
 
 # ------------------------------------------------------------------------------------------------ BC models, kept
-def models_path(files: dict, n: dict) -> Path | None:
+def models_path(files: dict, n: dict, env=None) -> Path | None:
     """Where the BC models and H_proxy's quality of these splits are kept between runs (every run of a task fits the
     same ones): a file in the compilation cache's folder named by the splits' contents, the sizes ``n`` and this
-    module's and co-play's code; None without a cache folder."""
+    module's, co-play's and the features' (``env.person_features``) code; None without a cache folder."""
     from ..runtime import xla
 
     root = xla.compile_cache_dir()
@@ -244,7 +258,8 @@ def models_path(files: dict, n: dict) -> Path | None:
     h = hashlib.sha256()
     for k in ("train", "validation", "test"):
         h.update(Path(files[k]).read_bytes())
-    for mod in (__file__, coplay.__file__):
+    features = getattr(env, "person_features", None)
+    for mod in (__file__, coplay.__file__, *([inspect.getsourcefile(features)] if features is not None else [])):
         h.update(Path(mod).read_bytes())
     h.update(json.dumps({**n, "seed": FIELD_SEED, "backend": jax.default_backend()}, sort_keys=True).encode())
     return root / "field" / f"{h.hexdigest()[:24]}.npz"
@@ -284,7 +299,7 @@ class Field:
         from ..data import sets
 
         files = {**{k: sets.split_path(s.cfg, k) for k in ("train",) if k not in (s.files or {})}, **(s.files or {})}
-        self.path = models_path(files, self.n)
+        self.path = models_path(files, self.n, s.env)
         if self.path is not None and self.path.is_file():
             models, self.quality = _load(self.path)
         else:
@@ -385,7 +400,7 @@ def prepare(cfg) -> Path | None:
     if not supported(env):
         return None
     files = {k: sets.split_path(cfg, k, env=env) for k in (sets.TRAIN, sets.VALIDATION, sets.TEST)}
-    if models_path(files, sizes()) is None:
+    if models_path(files, sizes(), env) is None:
         return None
     f = Field(SimpleNamespace(env=env, cfg=cfg, files=files, nets=None))
     f.proxy_quality()

@@ -26,7 +26,7 @@ _FAR = 10_000  # the distance to a target no floor path reaches
 # observation planes (module docstring of env.py)
 _POS, _OTHER_POS, _FACING, _OTHER_FACING = 0, 1, slice(2, 6), slice(6, 10)
 _POT, _COUNTER, _ONION_PILE, _PLATE_PILE, _GOAL = 10, 11, 12, 14, 15
-_ONIONS_IN_POT, _ONIONS_IN_SOUP, _COOKING, _READY, _PLATES, _ONIONS = 16, 18, 20, 21, 22, 23
+_ONIONS_IN_POT, _ONIONS_IN_SOUP, _READY, _PLATES, _ONIONS = 16, 18, 21, 22, 23
 _STEPS = np.array([(0, -1), (0, 1), (1, 0), (-1, 0)])  # up, down, right, left (x, y; y down): the actions' order
 
 

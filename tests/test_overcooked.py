@@ -74,6 +74,11 @@ def test_reset_step_shapes_and_one_hot_actions(env, fns):
     assert int(s1.pipeline_state.agent_dir_idx[0]) == 2
     for x, y in zip(jax.tree.leaves(s1), jax.tree.leaves(s2)):
         np.testing.assert_array_equal(x, y)
+    # a half of zeros (a replayed recording past its end) is stay, not argmax's first action (up)
+    s3 = fns["step"](s, jnp.zeros(12).at[6 + 1].set(1.0))  # the human gives nothing, the robot moves down
+    s4 = fns["step"](s, _action(4, 1))
+    for x, y in zip(jax.tree.leaves(s3), jax.tree.leaves(s4)):
+        np.testing.assert_array_equal(x, y)
     np.testing.assert_array_equal(s1.obs, env._obs(env._game.get_obs(s1.pipeline_state), 0))  # agent_0's view
     assert s1.info["t"].dtype == jnp.int32 and int(s1.info["t"]) == 1
     assert set(s1.metrics) == {"success", "soups", "onions_h", "onions_r", "plates_h", "plates_r", "dished_h",

@@ -7,7 +7,8 @@ unchanged: this class wraps its ``step_env`` (no auto-reset) and reads the event
 Seats: each episode seats the human as one of the two players, the robot as the other (the init vector's last
 entry, ``seat``: the human's player, 0 or 1; ``sample_init`` draws it, so the robot learns and is judged in both
 seats, as the field's agents are). ``State.info["seat"]`` holds it. Each agent has 6 discrete actions: 0 up, 1 down, 2 right, 3 left, 4 stay, 5 interact (y points down); ``step`` takes
-``concat(a_H, a_R)`` as two one-hot vectors (12 floats) and acts on the argmax of each half.
+``concat(a_H, a_R)`` as two one-hot vectors (12 floats) and acts on the argmax of each half; a half of zeros (no
+choice: a replayed recording that has ended, or a file's padding) is stay.
 
 Observation: the human's JaxMARL observation (that of the human's player), an (H, W, 26) grid of feature planes
 (``obs_grid``; the human's planes first, then the robot's, then the kitchen's, pots and items, and the last-40-steps
@@ -128,7 +129,8 @@ class Overcooked(CollabEnv):
 
     def step(self, state: State, action: jax.Array) -> State:
         ps, seat = state.pipeline_state, state.info["seat"]
-        hr = jnp.argmax(jnp.asarray(action).reshape(2, NUM_ACTIONS), axis=-1).astype(jnp.int32)  # human, robot
+        halves = jnp.asarray(action).reshape(2, NUM_ACTIONS)
+        hr = jnp.where(jnp.any(halves != 0, axis=-1), jnp.argmax(halves, axis=-1), STAY).astype(jnp.int32)  # human, robot
         acts = jnp.where(seat == 0, hr, hr[::-1])  # by player
         obs, nps, rewards, _, _ = self._game.step_env(jax.random.PRNGKey(0), ps, {"agent_0": acts[0],
                                                                                   "agent_1": acts[1]})

@@ -39,8 +39,8 @@ def people(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def few_people(people, tmp_path_factory):
-    """The first episodes of each split (train 4, validation 4, test 12: the test split's first held-out window is
-    its 6th), as `cogail data` writes them: BC fits on them take a few seconds (full-batch Adam over every step)."""
+    """The first episodes of each split (train 4, validation 4, test 12: six windows in both seats, of which the fifth is
+    held out), as `cogail data` writes them: BC fits on them take a few seconds (full-batch Adam over every step)."""
     env, files = people
     d = tmp_path_factory.mktemp("few-people")
     out = {}
@@ -97,6 +97,10 @@ def test_held_out_windows_take_both_seats(people):
     for i in range(0, len(obs), 2):  # each window's two copies: the human agent as player 0, then as player 1
         np.testing.assert_array_equal(obs[i + 1, 0], obs[i, 0][perm])
         assert held[i] == held[i + 1]
+    # every trial starts from the same state: windows that share a first observation are still windows of their own,
+    # so every fifth of the N / 2 windows is held out
+    assert any(np.array_equal(obs[i, 0], obs[0, 0]) for i in range(2, len(obs), 2))
+    assert held.sum() == 2 * (len(obs) // 2 // int(round(1 / field.HOLDOUT)))
 
 
 def test_both_seats_are_played(monkeypatch):

@@ -116,17 +116,15 @@ def fit_bc(x: np.ndarray, y: np.ndarray, steps: int, seed: int) -> coplay.Proxy:
 
 def held_out_episodes(obs: np.ndarray, env) -> np.ndarray:
     """(N,) bool: the test episodes H_proxy's accuracy is measured on, every ``1 / HOLDOUT``-th window of play. An
-    episode recorded in both seats (the same first state, one the other's ``seat_view``) is one window: both of its
-    copies are held out together, or the copy fitted would have seen the held-out steps from the other seat."""
-    first = np.asarray(obs)[:, 0]
+    episode recorded in both seats (the same observations, one the other's ``seat_view``) is one window: both of its
+    copies are held out together, or the copy fitted would have seen the held-out steps from the other seat. Windows
+    are told apart by all their observations, not the first: every trial of a kitchen starts from the same state."""
+    obs = np.ascontiguousarray(obs)
     perm = np.asarray(env.seat_view)
-    window, seen = np.zeros(len(first), np.int64), []
-    for i, o in enumerate(first):
-        match = next((w for w, ref in enumerate(seen) if np.array_equal(o, ref) or np.array_equal(o[perm], ref)), None)
-        if match is None:
-            seen.append(o)
-            match = len(seen) - 1
-        window[i] = match
+    window, seen = np.zeros(len(obs), np.int64), {}
+    for i, o in enumerate(obs):
+        key = min(o.tobytes(), np.ascontiguousarray(o[..., perm]).tobytes())
+        window[i] = seen.setdefault(key, len(seen))
     every = int(round(1 / HOLDOUT))
     return window % every == every - 1
 

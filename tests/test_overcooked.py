@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("jaxmarl")
 
 from cogail_envs import get_task  # noqa: E402
-from cogail_envs.overcooked import VARIANTS, kitchen as kt, trials as tr  # noqa: E402
+from cogail_envs.overcooked import VARIANTS, kitchen as kt, report, trials as tr  # noqa: E402
 from cogail_envs.overcooked.env import NUM_ACTIONS, Overcooked, one_hot_actions  # noqa: E402
 
 
@@ -254,6 +254,10 @@ def test_recorded_splits(env):
         got = trial[int(r["pair"][i])].deliveries[start:start + r["length"][i]].sum()
         assert r["final_metrics"]["soups"][i] == got
     assert r["success"].shape == (n,) and np.all(r["success"] == (r["final_metrics"]["soups"] > 0))
+    # docs/overcooked.md's tables (report.py) count each window once, the copy with player 0 as the human
+    w = report.window_counts(env, r)
+    assert 2 * w["episodes"] == n and 2 * w["steps"] == r["length"].sum() and sum(w["strategies"]) == n // 2
+    assert 2 * w["soups"] == r["final_metrics"]["soups"].sum()
     assert r["source"]["file"].endswith("clean_train_trials.pickle") and len(r["source"]["sha256"]) == 64
     assert r["source"]["kitchen"] == "cramped_room" and r["source"]["split"] == "validation"
 

@@ -53,9 +53,10 @@ def cook_counter_overrun() -> dict:
 
 
 def dataset_rows(kitchens=tuple(kt.KITCHENS)) -> list[dict]:
-    """Per kitchen and split: pairs, trials, episodes, steps, episodes per strategy id, deliveries and the time
-    :func:`trials.recorded` took (seconds, this process; the first split of a kitchen parses its trials and
-    compiles the replay)."""
+    """Per kitchen and split: pairs, trials, windows of play, steps, windows per strategy id (labelled with the
+    trial's player 0 as the human), deliveries and the time :func:`trials.recorded` took (seconds, this process;
+    the first split of a kitchen parses its trials and compiles the replay). The files hold each window twice, the
+    human agent as player 0 and then as player 1: the counts here are of the first copies."""
     rows = []
     for kitchen in kitchens:
         env = Overcooked(kitchen)
@@ -63,12 +64,18 @@ def dataset_rows(kitchens=tuple(kt.KITCHENS)) -> list[dict]:
             t0 = time.perf_counter()
             r = tr.recorded(env, split)
             seconds = time.perf_counter() - t0
-            counts = np.bincount(r["strategy"], minlength=env.num_strategies + 1)
             rows.append(dict(kitchen=kitchen, split=split, pairs=len(set(r["pair"].tolist())),
-                             trials=len(tr.split_trials(kitchen, split)), episodes=len(r["length"]),
-                             steps=int(r["length"].sum()), strategies=counts.tolist(),
-                             soups=float(r["final_metrics"]["soups"].sum()), seconds=seconds))
+                             trials=len(tr.split_trials(kitchen, split)), **window_counts(env, r), seconds=seconds))
     return rows
+
+
+def window_counts(env: Overcooked, r: dict) -> dict:
+    """Windows of play, their steps, windows per strategy id and deliveries of a split (:func:`trials.recorded`),
+    each window counted once: its copy with the trial's player 0 as the human (the files hold each twice)."""
+    first = slice(0, None, 2)
+    return dict(episodes=len(r["length"][first]), steps=int(r["length"][first].sum()),
+                strategies=np.bincount(r["strategy"][first], minlength=env.num_strategies + 1).tolist(),
+                soups=float(r["final_metrics"]["soups"][first].sum()))
 
 
 def split_table(rows: list[dict]) -> str:

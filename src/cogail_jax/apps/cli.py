@@ -473,7 +473,7 @@ def _dispatch(a) -> int:
             except ValueError:
                 raise ConfigError(f"--mix {a.mix}: weights are comma-separated numbers, one per strategy, e.g. "
                                   f"{','.join(['1'] * env.num_strategies)}") from None
-        output_file(a.out, "--out", "demos.hdf5")
+        output_file(a.out, "--out", "demos.hdf5", keep=True)  # a dataset already there is the user's: kept
         try:
             t0 = time.time()
             eps = demos.generate(env, a.num, mix=mix, seed=a.seed)
@@ -618,7 +618,8 @@ def _dispatch(a) -> int:
         from ..data.importer import import_demos, load_mapping, parse_keys
 
         mapping = {**(load_mapping(a.map) if a.map else {}), **parse_keys(a.key)}
-        output_file(a.out, "--out", "mine.hdf5")
+        if not (Path(a.out).exists() and Path(a.out).resolve() == Path(a.src).resolve()):  # import_demos says so
+            output_file(a.out, "--out", "mine.hdf5", keep=True)  # a dataset already there is the user's: kept
         print(import_demos(a.src, a.out, a.task, mapping).describe(a.task))
         return 0
     if a.command == "report":

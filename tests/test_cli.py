@@ -174,6 +174,7 @@ def test_an_output_made_from_a_run_is_replaced_when_run_again(command, tmp_path,
 
 @pytest.mark.parametrize("args,needle", [
     (["demos", "--task", "fetchq", "--mix", "a,b", "--out", "OUT"], "--mix a,b: weights are comma-separated numbers"),
+    (["demos", "--task", "fetchq", "--mix", "1,0.5", "--out", "OUT"], "needs 4 non-negative weights, e.g. 1,1,1,1, got 1,0.5"),
     (["demos", "--task", "fetchq", "--seed", str(2 ** 64), "--out", "OUT"], "a seed is an integer from 0 to 4294967295"),
     (["data", "--task", "fetchq", "--mix", "D9"], "unknown mixture 'D9' for fetchq: choose one of uniform, D1, D2"),
     (["train", "--task", "fetchq", "--run", "OUT", "--seeds", "1,4294967296"], "a seed is an integer from 0"),

@@ -20,6 +20,16 @@ def test_help(cmd, capsys):
     assert "usage: cogail" in capsys.readouterr().out
 
 
+
+def test_demos_help_points_to_the_page_that_describes_the_schema(capsys):
+    """``cogail demos --help`` names the file and section that describe the schema it writes, and they exist."""
+    with pytest.raises(SystemExit):
+        cli.main(["demos", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert 'docs/tasks.md, "Demonstration files"' in text and "see README" not in text, text
+    page = Path(__file__).parents[1] / "docs" / "tasks.md"
+    assert "\n## Demonstration files\n" in page.read_text()
+
 def run(*args):
     return subprocess.run([sys.executable, "-m", "cogail_jax.apps.cli", *args], capture_output=True, text=True, timeout=300)
 

@@ -117,7 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser("demos", help="generate scripted human-human demonstrations into an HDF5 file",
                        description="Generate scripted human-human demonstrations (one jitted, vmapped call) "
-                                   "and write them in the project's HDF5 schema (see README).")
+                                   "and write them in the project's HDF5 schema (docs/tasks.md, \"Demonstration files\").")
     d.add_argument("--task", required=True, help=_task_help())
     d.add_argument("--num", type=positive, default=60, help="number of demonstrations (default 60)")
     d.add_argument("--mix", default="uniform", help=_mix_help() + ", or comma-separated weights")

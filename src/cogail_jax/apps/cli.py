@@ -122,7 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--num", type=positive, default=60, help="number of demonstrations (default 60)")
     d.add_argument("--mix", default="uniform", help=_mix_help() + ", or comma-separated weights")
     d.add_argument("--seed", type=seed, default=0)
-    d.add_argument("--out", required=True, help="output .hdf5 path")
+    d.add_argument("--out", required=True, help="output .hdf5 path, a new file (one that exists is kept)")
 
     da = sub.add_parser("data", help="make every dataset a run needs (train, validation, test, varied humans)",
                         description="Make the datasets of a run's config with the task's scripted team: the training "
@@ -295,7 +295,7 @@ def build_parser() -> argparse.ArgumentParser:
                             "  cogail import --task TASK --in my_robomimic.hdf5 --out data/mine.hdf5 --map my_map.json"))
     im.add_argument("--task", required=True, help=_task_help())
     im.add_argument("--in", dest="src", required=True, metavar="FILE", help="input .hdf5/.h5 or .npz file")
-    im.add_argument("--out", required=True, metavar="FILE.hdf5", help="output file in the project's schema")
+    im.add_argument("--out", required=True, metavar="FILE.hdf5", help="output file in the project's schema, a new file (one that exists is kept)")
     im.add_argument("--map", default=None, metavar="MAPFILE", help='JSON key mapping, e.g. {"obs": "states"}')
     im.add_argument("--key", action="append", default=[], metavar="FIELD=SOURCE",
                     help="where a field is in the input, e.g. --key obs=observations (repeatable; wins over --map)")

@@ -1,6 +1,8 @@
 import json
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -17,6 +19,16 @@ def test_help(cmd, capsys):
     assert e.value.code == 0
     assert "usage: cogail" in capsys.readouterr().out
 
+
+
+def test_demos_help_points_to_the_page_that_describes_the_schema(capsys):
+    """``cogail demos --help`` names the file and section that describe the schema it writes, and they exist."""
+    with pytest.raises(SystemExit):
+        cli.main(["demos", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert 'docs/tasks.md, "Demonstration files"' in text and "see README" not in text, text
+    page = Path(__file__).parents[1] / "docs" / "tasks.md"
+    assert "\n## Demonstration files\n" in page.read_text()
 
 def run(*args):
     return subprocess.run([sys.executable, "-m", "cogail_jax.apps.cli", *args], capture_output=True, text=True, timeout=300)
@@ -128,8 +140,51 @@ def test_an_output_that_cannot_be_written_ends_before_the_work(command, where, t
     assert sorted(str(p) for p in tmp_path.rglob("*")) == before and (tmp_path / "file").read_text() == "mine"
 
 
+@pytest.mark.parametrize("command", ["demos", "import"])
+def test_a_dataset_that_exists_is_never_overwritten(command, tmp_path, capsys):
+    """``cogail demos --out`` and ``cogail import --out`` refuse a file that is there (a user's dataset), in one
+    sentence naming it and the fix, before any work."""
+    out = tmp_path / "mine.hdf5"
+    out.write_text("mine")
+    src = tmp_path / "src.hdf5"
+    src.write_text("not read")
+    args = {"demos": ["demos", "--task", "fetchq", "--num", "2", "--out", str(out)],
+            "import": ["import", "--task", "fetchq", "--in", str(src), "--out", str(out)]}[command]
+    code, err = in_process(args, capsys)
+    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert f"--out {out} exists: remove it or pass another file name" in err, err
+    assert out.read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["mine.hdf5", "src.hdf5"]
+
+
+@pytest.mark.parametrize("command", ["video", "report", "bench"])
+def test_an_output_made_from_a_run_is_replaced_when_run_again(command, tmp_path, capsys, monkeypatch):
+    """What a command derives (a video, a report, a bench table) is written again over the file of an earlier
+    call; a file that cannot be written is one sentence."""
+    from cogail_jax.apps import bench
+
+    out = tmp_path / {"video": "v.gif", "report": "r.html", "bench": "b.json"}[command]
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "config.json").write_text('{"task": "fetchq"}')
+    monkeypatch.setattr(bench, "main", lambda task, sizes, out, *rest: Path(out).write_text("[]"))  # no benchmark
+    args = {"video": ["video", "--task", "fetchq", "--num", "1", "--steps", "2", "--out", str(out)],
+            "report": ["report", "--run", str(run_dir), "--out", str(out)],
+            "bench": ["bench", "fetchq", str(out)]}[command]
+    out.write_text("earlier")
+    code, err = in_process(args, capsys)
+    assert code == 0 and out.read_bytes() != b"earlier", err
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode, **kw: str(p) != str(out) and real_access(p, mode, **kw))  # as if read-only
+    out.write_text("earlier")
+    code, err = in_process(args, capsys)
+    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert f"{out} exists and cannot be written: make it writable or pass another file name" in err, err
+    assert out.read_text() == "earlier"
+
+
 @pytest.mark.parametrize("args,needle", [
     (["demos", "--task", "fetchq", "--mix", "a,b", "--out", "OUT"], "--mix a,b: weights are comma-separated numbers"),
+    (["demos", "--task", "fetchq", "--mix", "1,0.5", "--out", "OUT"], "needs 4 non-negative weights, e.g. 1,1,1,1, got 1,0.5"),
     (["demos", "--task", "fetchq", "--seed", str(2 ** 64), "--out", "OUT"], "a seed is an integer from 0 to 4294967295"),
     (["data", "--task", "fetchq", "--mix", "D9"], "unknown mixture 'D9' for fetchq: choose one of uniform, D1, D2"),
     (["train", "--task", "fetchq", "--run", "OUT", "--seeds", "1,4294967296"], "a seed is an integer from 0"),

@@ -523,3 +523,35 @@ def test_collect_help_and_bad_options(tmp_path, capsys):
         assert cli.main(argv) == 2
         err = capsys.readouterr().err
         assert needle in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_scripted_partner_keeps_its_seat_while_it_plans_and_ends_in_one_sentence(tmp_path, monkeypatch, capsys):
+    """examples/collect_partner.py: while the team's plan is computed (its first compile takes seconds on a busy
+    CPU: longer than the table waits for a silent seat) the partner keeps its seat; a table that stops answering
+    ends it in one sentence, no traceback."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("collect_partner", ROOT / "examples" / "collect_partner.py")
+    partner = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(partner)
+    srv, url = _serve("fetchq", tmp_path / "people.hdf5", hz=40, leave=1.0)
+    planned = threading.Event()
+
+    def slow_plan(env, init, seed, steps, step_fn=None):  # 2.5 times as long as the table waits
+        time.sleep(2.5)
+        planned.set()
+        return (np.zeros((steps, env.human_action_size), np.float32),
+                np.zeros((steps, env.robot_action_size), np.float32))
+
+    monkeypatch.setattr(collect, "scripted_actions", slow_plan)
+    code = []
+    t = threading.Thread(target=lambda: code.append(partner.main(["--url", url, "--task", "fetchq"])), daemon=True)
+    t.start()
+    _wait(planned.is_set, "the partner's plan")
+    assert srv.collector.seats["robot"].token, "the table dropped the partner's seat while it planned"
+    srv.shutdown()
+    collect.close(srv)
+    t.join(30)
+    err = capsys.readouterr().err
+    assert code == [2] and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert f"the table at {url} stopped answering" in err, err

@@ -128,6 +128,26 @@ def test_scripted_pair_succeeds_in_coplay(scripted_coplay, task):
         assert set(out["strategy"][0].tolist()) == {1, 2}, out
 
 
+@pytest.mark.parametrize("task", ["examples.table_carry:TASK", "fetchq", "handover"])
+def test_results_md_describes_only_the_partners_and_robots_it_shows(task):
+    """results.md's co-play footnote: the scripted human, its variations, its held-out pose slices and the scripted
+    robot each described where the task has them (the partners coplay.partners gives it), never otherwise."""
+    env = make_env(task)
+    names, scripted = coplay.partners(env), coplay.has_scripted_robot(env)
+    proxy = {"hidden": [256, 256], "split": "test", "episodes": 20, "samples": 900, "steps": 500, "loss": 0.01}
+    one = {"mean": 0.5, "std": 0.1}
+    c = {"partners": names, "episodes": 4, "proxy_episodes": 16, "scripted_robot_copies": 1 if scripted else 0,
+         "learned": {"selected": {"checkpoint": 3, "success": {n: one for n in names}}},
+         "scripted_robot": {n: 0.5 for n in names} if scripted else None, "proxy": proxy}
+    note = coplay.markdown(c)[-1]
+    assert ("scripted human" in note) == (coplay.SCRIPTED in names), note
+    assert ("change_of_mind" in note) == ("change_of_mind" in names), note
+    assert ("pose_heldout" in note) == any(n.startswith("pose_heldout") for n in names), note
+    assert ("The scripted robot" in note) == scripted and "proxy: an MLP (256, 256)" in note, note
+    if task.startswith("examples"):  # a proxy alone: nothing of a scripted human or robot
+        assert names == [coplay.PROXY] and not scripted and "scripted" not in note, note
+
+
 def test_each_held_out_pose_slice_is_a_partner_where_the_team_draws_them():
     """Where the team draws held-out pose slices, each (``pose_heldout_<axis>``) is a co-play partner: its episodes
     carry that slice's variation id (the scripted human presents the object there) and start as the other partners'

@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import h5py
 import numpy as np
 import pytest
@@ -50,6 +52,17 @@ def test_loader_errors_name_file_demo_problem(case, demo_files, fetchq, tmp_path
     assert str(bad) in msg and needle in msg and "\n" not in msg
     if case in ("missing key", "wrong dims", "nan", "strategy out of range"):
         assert "demo_" in msg
+
+
+def test_a_file_in_another_layout_says_what_it_holds_and_how_to_convert_it(fetchq):
+    """A robomimic-like file whose demos are not named demo_<i> (examples/: traj_<i>) is not "empty": the sentence
+    names what its data group holds and the command that converts it."""
+    src = Path(__file__).parents[1] / "examples" / "fetchq_robomimic_style.hdf5"
+    with pytest.raises(data.DatasetError) as e:
+        data.load_demos(src, fetchq)
+    msg = str(e.value)
+    assert "holds 4 groups named traj_0, traj_1, traj_2, ..., not demo_<i>" in msg and "empty" not in msg, msg
+    assert f"`cogail import --task fetchq --in {src} --out FILE.hdf5`" in msg and "\n" not in msg, msg
 
 
 def test_loader_not_hdf5_and_missing(fetchq, tmp_path):

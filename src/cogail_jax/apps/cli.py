@@ -117,12 +117,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser("demos", help="generate scripted human-human demonstrations into an HDF5 file",
                        description="Generate scripted human-human demonstrations (one jitted, vmapped call) "
-                                   "and write them in the project's HDF5 schema (see README).")
+                                   "and write them in the project's HDF5 schema (docs/tasks.md, \"Demonstration files\").")
     d.add_argument("--task", required=True, help=_task_help())
     d.add_argument("--num", type=positive, default=60, help="number of demonstrations (default 60)")
     d.add_argument("--mix", default="uniform", help=_mix_help() + ", or comma-separated weights")
     d.add_argument("--seed", type=seed, default=0)
-    d.add_argument("--out", required=True, help="output .hdf5 path")
+    d.add_argument("--out", required=True, help="output .hdf5 path, a new file (one that exists is kept)")
 
     da = sub.add_parser("data", help="make every dataset a run needs (train, validation, test, varied humans)",
                         description="Make the datasets of a run's config with the task's scripted team: the training "
@@ -295,7 +295,7 @@ def build_parser() -> argparse.ArgumentParser:
                             "  cogail import --task TASK --in my_robomimic.hdf5 --out data/mine.hdf5 --map my_map.json"))
     im.add_argument("--task", required=True, help=_task_help())
     im.add_argument("--in", dest="src", required=True, metavar="FILE", help="input .hdf5/.h5 or .npz file")
-    im.add_argument("--out", required=True, metavar="FILE.hdf5", help="output file in the project's schema")
+    im.add_argument("--out", required=True, metavar="FILE.hdf5", help="output file in the project's schema, a new file (one that exists is kept)")
     im.add_argument("--map", default=None, metavar="MAPFILE", help='JSON key mapping, e.g. {"obs": "states"}')
     im.add_argument("--key", action="append", default=[], metavar="FIELD=SOURCE",
                     help="where a field is in the input, e.g. --key obs=observations (repeatable; wins over --map)")
@@ -473,7 +473,7 @@ def _dispatch(a) -> int:
             except ValueError:
                 raise ConfigError(f"--mix {a.mix}: weights are comma-separated numbers, one per strategy, e.g. "
                                   f"{','.join(['1'] * env.num_strategies)}") from None
-        output_file(a.out, "--out", "demos.hdf5")
+        output_file(a.out, "--out", "demos.hdf5", keep=True)  # a dataset already there is the user's: kept
         try:
             t0 = time.time()
             eps = demos.generate(env, a.num, mix=mix, seed=a.seed)
@@ -618,7 +618,8 @@ def _dispatch(a) -> int:
         from ..data.importer import import_demos, load_mapping, parse_keys
 
         mapping = {**(load_mapping(a.map) if a.map else {}), **parse_keys(a.key)}
-        output_file(a.out, "--out", "mine.hdf5")
+        if not (Path(a.out).exists() and Path(a.out).resolve() == Path(a.src).resolve()):  # import_demos says so
+            output_file(a.out, "--out", "mine.hdf5", keep=True)  # a dataset already there is the user's: kept
         print(import_demos(a.src, a.out, a.task, mapping).describe(a.task))
         return 0
     if a.command == "report":

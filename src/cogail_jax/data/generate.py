@@ -53,7 +53,9 @@ def resolve_mix(env, mix) -> jnp.ndarray:
     w = jnp.asarray(mix, jnp.float32)
     if w.shape != (env.num_strategies,) or not bool(jnp.all(w >= 0)) or float(w.sum()) <= 0:
         raise ValueError(
-            f"a mixture for {env.name} needs {env.num_strategies} non-negative weights, got {list(np.asarray(w))}"
+            f"a mixture for {env.name} needs {env.num_strategies} non-negative weights, e.g. "
+            f"{','.join(['1'] * env.num_strategies)}, got "
+            f"{','.join(f'{x:g}' for x in np.asarray(mix, float).ravel().tolist())}"
         )
     return w / w.sum()
 

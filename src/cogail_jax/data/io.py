@@ -189,7 +189,13 @@ def load_demos(path: str | os.PathLike, env, require_init: bool = False) -> Demo
             raise DatasetError(f"{where} has no 'data' group: it does not follow the robomimic layout (data/demo_<i>/...)")
         names = sorted((k for k in f["data"].keys() if k.startswith("demo")), key=_demo_key)
         if not names:
-            raise DatasetError(f"{where} is empty: its 'data' group holds no demo_<i> groups")
+            if not (others := sorted(f["data"].keys(), key=_demo_key)):
+                raise DatasetError(f"{where} is empty: its 'data' group holds no demo_<i> groups")
+            kind = "groups" if all(isinstance(f["data"][k], h5py.Group) for k in others) else "entries"
+            shown = ", ".join(others[:3]) + (", ..." if len(others) > 3 else "")
+            raise DatasetError(f"{where} is not in the project's schema: its 'data' group holds {len(others)} {kind} "
+                               f"named {shown}, not demo_<i>; convert it with `cogail import --task {env.name} --in "
+                               f"{path} --out FILE.hdf5` (--key or --map say where each field is)")
         dims = {"obs": env.observation_size, "actions_human": env.human_action_size,
                 "actions_robot": env.robot_action_size}
         arrays: dict[str, list[np.ndarray]] = {k: [] for k in dims}

@@ -443,6 +443,35 @@ def evaluate(s, checkpoints: dict[str, tuple[int, dict]], episodes: int | None =
     return res
 
 
+def _footnote(c: dict) -> str:
+    """What results.md's co-play partners and robots are: a clause for each kind of partner in ``c["partners"]``
+    (the scripted human, its variations, its held-out pose slices, the proxy) and a sentence on the scripted robot
+    where ``c`` has its reference; nothing on what the task does not have."""
+    from cogail_envs.variations import HELD_OUT, VARIATIONS, is_held_out_set
+
+    names = c["partners"]
+    parts = []
+    if SCRIPTED in names:
+        parts.append("scripted: the task's scripted human, reacting to what the robot does and seeing only the state")
+    if varied := [n for n in names if n in VARIATIONS]:
+        parts.append(f"{', '.join(varied)}: that human with the variation of that name")
+    if held := [n for n in names if is_held_out_set(n)]:
+        parts.append("pose_heldout_<axis>: that human presenting the object in the held-out slice of that degree of "
+                     "freedom, every other in range" if any(n != HELD_OUT for n in held) else
+                     "pose_heldout: that human presenting the object in the task's held-out slice")
+    if PROXY in names and (p := c.get("proxy")):
+        extra = (f"; with the scripted robot it succeeds in {100 * p['success_with_scripted_robot']:.1f} %"
+                 if p.get("success_with_scripted_robot") is not None else "")
+        parts.append(f"proxy: an MLP {tuple(p['hidden'])} on the state and its change over the last 1 and 3 steps, "
+                     f"behaviour-cloned on the {p['split']} split's humans alone ({p['episodes']} episodes, "
+                     f"{p['samples']} steps, {p['steps']} updates, final loss {p['loss']:.4g}{extra})")
+    text = "; ".join(parts) + "." if parts else ""
+    if c.get("scripted_robot"):
+        text += (" The scripted robot acts on the state alone" + (" too" if SCRIPTED in names else "")
+                 + " (it reads the strategy off the human's moves).")
+    return text.strip()
+
+
 def markdown(c: dict) -> list[str]:
     """results.md's co-play section (``evaluate``'s dict)."""
     keys = list(c["learned"])
@@ -478,16 +507,8 @@ def markdown(c: dict) -> list[str]:
                 e = c["learned"][k]["score"].get(partner)
                 row.append("-" if e is None else f"{e['mean']:.2f} +- {e['std']:.2f}")
             lines.append("| " + " | ".join(row) + " |")
-    p = c["proxy"]
-    extra = (f"; with the scripted robot it succeeds in {100 * p['success_with_scripted_robot']:.1f} %"
-             if p.get("success_with_scripted_robot") is not None else "")
-    lines += ["", f"scripted: the task's scripted human, reacting to what the robot does and seeing only the state; "
-              f"the variations: that human varied (pose_heldout_<axis>: presenting the object in the held-out slice of "
-              f"that degree of freedom, every other in range); proxy: an MLP {tuple(p['hidden'])} on the state and its change "
-              f"over the last 1 and 3 steps, behaviour-cloned on the "
-              f"{p['split']} split's humans alone ({p['episodes']} episodes, {p['samples']} steps, {p['steps']} "
-              f"updates, final loss {p['loss']:.4g}{extra}). The scripted robot acts on the state alone too "
-              "(it reads the strategy off the human's moves)."]
+    if note := _footnote(c):
+        lines += ["", note]
     return lines
 
 

@@ -29,11 +29,22 @@ def output_dir(path: str | os.PathLike, option: str, fix: str = "pass a folder y
     return path
 
 
-def output_file(path: str | os.PathLike, option: str, example: str) -> Path:
-    """``path`` as a file to write (its folders made when written); ``OutputError`` naming ``option`` if it is a
-    folder, lies under a file, or cannot be written. ``example``: a file name to suggest in a folder."""
+def output_file(path: str | os.PathLike, option: str, example: str, keep: bool = False) -> Path:
+    """``path`` as a file to write (its folders made when written); a file already there is replaced, or, with
+    ``keep`` (a file the user made, e.g. a dataset), refused. ``OutputError`` naming ``option`` if it is a folder,
+    lies under a file, cannot be written (nor its folder), or exists and ``keep``. ``example``: a file name to
+    suggest in a folder."""
     path = Path(path)
+    name = f"{option} {path}".strip()
     if path.is_dir():
-        raise OutputError(f"{option} {path} is a folder: pass a file name, e.g. {path / example}".strip())
+        raise OutputError(f"{name} is a folder: pass a file name, e.g. {path / example}")
+    if path.exists() or path.is_symlink():
+        if keep:
+            raise OutputError(f"{name} exists: remove it or pass another file name")
+        if not os.access(path, os.W_OK):
+            raise OutputError(f"{name} exists and cannot be written: make it writable or pass another file name")
+        if not os.access(folder := path.absolute().parent, os.W_OK | os.X_OK):
+            raise OutputError(f"{name}: cannot write in {folder}: pass a path you can write")
+        return path
     _writable_from(path, option, "pass a path you can write")
     return path

@@ -399,19 +399,23 @@ def _config_from_args(a) -> "TrainConfig":  # noqa: F821
 
 def _compile_ahead(cfg) -> threading.Thread:
     """A thread, started, that compiles ``cfg``'s first training programs (``runs.compile_ahead``); its
-    ``seconds`` and ``error`` (None, or what went wrong: it only costs the training command the time) once joined."""
+    ``seconds``, ``compiling`` (of them, its own compilations' seconds) and ``error`` (None, or what went wrong: it
+    only costs the training command the time) once joined."""
     from .runs import compile_ahead
 
     def work():
-        t0 = time.perf_counter()
+        from ..runtime.timing import CompileLog
+
+        t0, log = time.perf_counter(), CompileLog(this_thread=True)
         try:
             compile_ahead(cfg)
         except Exception as e:  # noqa: BLE001
             t.error = f"{type(e).__name__}: {e}"
         t.seconds = time.perf_counter() - t0
+        t.compiling = sum(r["backend"] + r["trace"] for r in log.table().values())
 
     t = threading.Thread(target=work, name="compile-ahead", daemon=True)
-    t.seconds, t.error = 0.0, None
+    t.seconds, t.compiling, t.error = 0.0, 0.0, None
     t.start()
     return t
 
@@ -498,7 +502,7 @@ def _dispatch(a) -> int:
         from ..data.io import data_dir
 
         output_dir(data_dir(), "the data folder", "set COGAIL_DATA to a folder you can write")
-        t0, compiles = time.perf_counter(), CompileLog()
+        t0, compiles = time.perf_counter(), CompileLog(this_thread=True)  # the datasets' own, not the programs'
         ahead = None
         if a.programs and program_dir() is not None:
             from ..data import sets
@@ -509,7 +513,9 @@ def _dispatch(a) -> int:
         for name, path in make_datasets(cfg, robustness=a.robustness).items():
             print(f"{name}: {path}")
         xla = sum(r["backend"] + r["trace"] for r in compiles.table().values())
-        print(f"datasets ready in {time.perf_counter() - t0:.1f} s ({xla:.1f} s of it compiling)", flush=True)
+        print(f"datasets ready in {time.perf_counter() - t0:.1f} s ({xla:.1f} s of it compiling)"
+              + (" while the training programs compile beside them" if ahead is not None and ahead.is_alive() else ""),
+              flush=True)
         if a.robustness:  # the evaluation's BC models of people (the field's protocol), while the programs compile
             from ..eval import field
 
@@ -519,7 +525,8 @@ def _dispatch(a) -> int:
                       flush=True)
         if ahead is not None:
             ahead.join()
-            print(f"training programs compiled ahead in {ahead.seconds:.1f} s" if ahead.error is None else
+            print(f"training programs compiled ahead in {ahead.seconds:.1f} s ({ahead.compiling:.1f} s of it "
+                  "compiling)" if ahead.error is None else
                   f"warning: compiling the training programs ahead failed ({ahead.error}); `cogail train` compiles "
                   "them itself", flush=True)
         return 0

@@ -56,6 +56,7 @@ def test_user_errors_are_one_clear_line(args, needle, tmp_path, capsys):
     assert code == 2
     assert needle in err and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "run").exists()  # a run that cannot start leaves no folder for --resume to pick up
 
 
 @pytest.mark.parametrize("text,needle", [
@@ -148,6 +149,89 @@ def test_bad_values_end_before_anything_runs(args, needle, tmp_path, capsys, mon
     assert code == 2 and needle in err and "Traceback" not in err, err
     assert err.strip().splitlines()[-1].startswith(f"cogail {args[0]}: error:")
     assert not any(tmp_path.iterdir())  # no data, no run, no output
+
+
+def _saved_run(tmp_path, trained=True, **changes):
+    """A run folder whose config.json is fetchq's settings with ``changes`` (e.g. made when the task's defaults were
+    others), holding a checkpoint where ``trained`` (a stand-in: the folder's content is all that is looked at)."""
+    from cogail_jax.algo.config import resolve
+
+    run = tmp_path / "run"
+    run.mkdir()
+    saved = resolve("fetchq", "paper", {}).replace(**changes)
+    (run / "config.json").write_text(saved.to_json())
+    if trained:
+        (run / "checkpoints" / "40").mkdir(parents=True)
+    return run, saved
+
+
+@pytest.mark.parametrize("extra,saved_text,given_text", [
+    (["--total-steps", "40960"], "total_steps=6016000", "total_steps=40960"),
+    (["--set", "lambda_a=7"], "lambda_a=", "lambda_a=7.0"),
+    (["--seeds", "300,400"], "seeds=(300, 400, 500)", "seeds=(300, 400)"),
+    (["--demos", "mine.hdf5"], "demos=None", "demos='mine.hdf5'"),
+    (["--budget", "quick"], "total_steps=6016000", "total_steps=902400"),
+    (["--method", "ma_gail"], "method='cogail'", "method='ma_gail'"),
+    (["--seeds", "300,400", "--set", "lr=1e-3"], "seeds=(300, 400, 500) and lr=0.0003", "seeds=(300, 400) and lr=0.001"),
+])
+def test_resume_with_other_settings_is_refused_naming_them(extra, saved_text, given_text, tmp_path, capsys):
+    """`cogail train --resume` with an option that changes the run's config (its fields, --set, --seeds, --demos, a
+    named budget's, the method) ends in one sentence naming each field as saved and as given and the fix, before
+    anything runs: the run is neither trained with the saved config as if the option had been taken, nor changed."""
+    run, _ = _saved_run(tmp_path)
+    before = (run / "config.json").read_bytes()
+    code, err = in_process(["train", "--task", "fetchq", "--run", str(run), "--resume", "--no-progress", *extra], capsys)
+    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert f"cannot resume: {run} was trained with {saved_text}" in err and f"not the given {given_text}" in err, err
+    assert "drop those options to continue the run as it was, or pass another --run" in err
+    assert (run / "config.json").read_bytes() == before and sorted(p.name for p in run.iterdir()) == [
+        "checkpoints", "config.json"]
+
+
+@pytest.mark.parametrize("args", [
+    [],  # the run's own task
+    ["--task", "fetchq"],
+    ["--task", "fetchq", "--budget", "paper", "--method", "cogail", "--seeds", "300,400,500"],  # as `make train`
+    ["--task", "fetchq", "--total-steps", "1234", "--eval", "--keep-policies", "all", "--no-progress"],
+    ["--config", "RUN/config.json"],
+])
+def test_resume_continues_a_run_made_under_other_defaults(args, tmp_path):
+    """Only what the user gives is compared with the run's config, never the task's current settings: a run made
+    when fetchq's defaults were others (here lr, num_envs and total_steps) is continued with its own config by a plain
+    --resume, by the options `make train` always gives when they equal the run's, and with options that change no
+    field (or equal the run's)."""
+    from cogail_jax.apps import runs
+
+    run, saved = _saved_run(tmp_path, lr=1e-3, num_envs=32, total_steps=1234)
+    a = cli.build_parser().parse_args(["train", "--run", str(run), "--resume",
+                                       *[x.replace("RUN", str(run)) for x in args]])
+    cfg, given = cli._config_and_given(a)
+    assert cfg != saved or "--config" in args  # today's defaults
+    assert runs.run_config(cfg, run, True, given) == (saved, False)  # the run's own, and its folder as it is
+
+
+def test_a_run_folder_that_never_trained_starts_afresh(tmp_path, capsys):
+    """A folder a command left without a checkpoint (it failed or was stopped before its first one) holds no run:
+    resumed with other options it starts afresh with those (a plain --resume keeps its config), its stale data
+    record dropped; a folder holding checkpoints is never started over, config.json or not."""
+    from cogail_jax.apps import runs
+
+    run, saved = _saved_run(tmp_path, trained=False, demos=str(tmp_path / "missing.hdf5"), train_varied=0)
+    (run / "data.json").write_text('{"sets": {"train": {"path": "missing.hdf5", "content_hash": "x"}}}')
+    a = cli.build_parser().parse_args(["train", "--task", "fetchq", "--run", str(run), "--resume", "--demos", "d.hdf5",
+                                       "--set", "train_varied=0"])
+    cfg, given = cli._config_and_given(a)
+    assert runs.run_config(saved, run, True, set()) == (saved, True)
+    assert runs.run_config(cfg, run, True, given) == (cfg, True)
+    assert "holds no checkpoint: starting it afresh with the options given" in capsys.readouterr().out
+    runs.write_run_dir(cfg, run)
+    assert json.loads((run / "config.json").read_text())["demos"] == "d.hdf5" and not (run / "data.json").exists()
+    (run / "policies" / "2").mkdir(parents=True)  # a run that trained: refused either way, nothing written
+    with pytest.raises(runs.RunError, match="cannot resume"):
+        runs.run_config(saved, run, True, {"demos"})
+    (run / "config.json").unlink()
+    with pytest.raises(runs.RunError, match="holds checkpoints but no config.json"):
+        runs.run_config(cfg, run, False)
 
 
 def in_process(args, capsys):

@@ -439,8 +439,7 @@ def _tiny_train_eval(run, train, held, validation) -> int:
 def test_train_with_eval_prepares_the_evaluation_while_training(demo_files, fetchq, tmp_path, capsys, monkeypatch):
     """`cogail train --eval`: the evaluation's sets and programs are made ready in the background during training
     (speed.json's eval_parts.prepared), the evaluation reports every checkpoint, and then the policies of the
-    checkpoints it reports no figure of are pruned (``--keep-policies reported``, the default). A validation file
-    that cannot be read ends the command in one sentence after training, whose checkpoints are kept."""
+    checkpoints it reports no figure of are pruned (``--keep-policies reported``, the default)."""
     from cogail_jax.apps import eval_runner
     from cogail_jax.data import io as data
     from cogail_jax.data import generate as demos
@@ -457,9 +456,43 @@ def test_train_with_eval_prepares_the_evaluation_while_training(demo_files, fetc
     assert rec["eval_parts"]["prepared"] > 0 and rec["phases"]["eval"] > 0
     assert json.loads((run / "results.json").read_text())["checkpoints"] == [2, 4]
     assert "selected on validation" in capsys.readouterr().out
-    bad = tmp_path / "bad.hdf5"
-    bad.write_text("not hdf5")
-    assert _tiny_train_eval(tmp_path / "run2", train, held, bad) == 2
-    out, err = capsys.readouterr()
-    assert "warning" not in out and err.strip().count("\n") == 0 and "could not be read as an HDF5 file" in err
-    assert (tmp_path / "run2" / "checkpoints").is_dir() and not (tmp_path / "run2" / "results.json").exists()
+
+
+@pytest.mark.parametrize("case,needle", [
+    ("no test split", "is missing: make the run's datasets first with `cogail data`"),
+    ("test file without init", "demo demo_0 has no 'init' dataset, which replay evaluation needs"),
+    ("validation file not HDF5", "could not be read as an HDF5 file"),
+    ("no varied humans", "is missing: make the run's datasets first with `cogail data`"),
+])
+def test_train_eval_checks_the_evaluation_files_before_training(case, needle, demo_files, tmp_path, capsys,
+                                                                monkeypatch):
+    """`cogail train --eval` checks its evaluation's files before it trains: a missing split or set of varied humans,
+    a test file without the start states replay needs or a file that is no HDF5 ends the command in one sentence
+    before any training, and leaves no run folder."""
+    import shutil
+
+    from cogail_jax.apps import train_loop
+
+    def trains(*args, **kw):
+        raise AssertionError("training started")
+
+    monkeypatch.setattr(train_loop, "_start_state", trains)
+    monkeypatch.setenv("COGAIL_DATA", str(tmp_path / "empty"))
+    train, held, val = demo_files
+    run = tmp_path / "run"
+    files = ["--heldout", str(held), "--validation", str(val)]
+    if case == "no test split":
+        files = ["--validation", str(val)]
+    elif case == "test file without init":
+        bad = shutil.copy(held, tmp_path / "noinit.hdf5")
+        with h5py.File(bad, "a") as f:
+            del f["data/demo_0/init"]
+        files = ["--heldout", str(bad), "--validation", str(val)]
+    elif case == "validation file not HDF5":
+        (tmp_path / "bad.hdf5").write_text("not hdf5")
+        files = ["--heldout", str(held), "--validation", str(tmp_path / "bad.hdf5")]
+    code, err = in_process(["train", "--task", "fetchq", "--run", str(run), "--demos", str(train), *files,
+                            "--set", "train_varied=0", "--eval", "--no-progress", "--no-coplay",
+                            *([] if case == "no varied humans" else ["--no-robustness"])], capsys)
+    assert code == 2 and needle in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert not run.exists()

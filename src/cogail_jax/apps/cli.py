@@ -552,7 +552,7 @@ def _dispatch(a) -> int:
                   "them itself", flush=True)
         return 0
     if a.command == "train":
-        from .eval_runner import EvalPrep, eval_run, prune_policies, was_pruned
+        from .eval_runner import EvalPrep, check_inputs, eval_run, prune_policies, was_pruned
         from .train_loop import train_run
 
         from ..runtime import distributed
@@ -567,7 +567,9 @@ def _dispatch(a) -> int:
                         coplay_episodes=a.coplay_episodes) if evaluates else None  # made ready while training runs
         run = train_run(cfg, a.run, resume=a.resume, progress=not a.no_progress, devices=a.devices,
                         keep=kept if evaluates else None, on_compiled=prep.start if prep else None,
-                        keep_full=a.keep_full, given=given)
+                        keep_full=a.keep_full, given=given,
+                        # the evaluation's files too, before training (and before the run folder is written)
+                        check=(lambda s: check_inputs(s, a.robustness)) if evaluates else None)
         if not distributed.primary():
             print(f"process {jax_process_index()}: trained; process 0 writes {run}", flush=True)
             distributed.barrier("done")  # until process 0 has written everything

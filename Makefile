@@ -56,7 +56,8 @@ browser:
 	else echo "warning: chromium/chromedriver missing and no apt-get: tests/test_play.py will fail"; fi
 
 # Makes the run's datasets (kept in data/ and reused), trains with the task's settings under BUDGET, then evaluates
-# every checkpoint. Re-running the same command resumes an interrupted run from its last checkpoint.
+# every checkpoint. Re-running the same command resumes an interrupted run from its last checkpoint (other TASK,
+# METHOD, SEEDS, BUDGET or EXTRA settings for a RUN that has trained stop with the fields that differ).
 # TASK may also be your own task, e.g. TASK=examples.table_carry:TASK (docs/tasks.md).
 CONFIG_ARGS = --task $(TASK) --budget $(BUDGET) --method $(METHOD) --seeds $(SEEDS) $(EXTRA)
 train: install

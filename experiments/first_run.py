@@ -58,7 +58,7 @@ def timed(args: list[str], env: dict, log: Path) -> tuple[float, float]:
 
 def data_account(log: Path) -> dict:
     """The data command's own account in ``log``: seconds until its datasets were ready and the compilation seconds
-    among them (summed over programs, so they can exceed the wall time where several compile side by side)."""
+    among them (its own thread's, not the training programs compiled beside them)."""
     found = re.findall(r"datasets ready in ([\d.]+) s \(([\d.]+) s of it compiling\)", log.read_text(errors="replace"))
     return {"data_ready_s": float(found[-1][0]), "data_compile_s": float(found[-1][1])} if found else {}
 

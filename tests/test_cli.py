@@ -68,6 +68,7 @@ def test_user_errors_are_one_clear_line(args, needle, tmp_path, capsys):
     assert code == 2
     assert needle in err and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "run").exists()  # a run that cannot start leaves no folder for --resume to pick up
 
 
 @pytest.mark.parametrize("text,needle", [
@@ -203,6 +204,89 @@ def test_bad_values_end_before_anything_runs(args, needle, tmp_path, capsys, mon
     assert code == 2 and needle in err and "Traceback" not in err, err
     assert err.strip().splitlines()[-1].startswith(f"cogail {args[0]}: error:")
     assert not any(tmp_path.iterdir())  # no data, no run, no output
+
+
+def _saved_run(tmp_path, trained=True, **changes):
+    """A run folder whose config.json is fetchq's settings with ``changes`` (e.g. made when the task's defaults were
+    others), holding a checkpoint where ``trained`` (a stand-in: the folder's content is all that is looked at)."""
+    from cogail_jax.algo.config import resolve
+
+    run = tmp_path / "run"
+    run.mkdir()
+    saved = resolve("fetchq", "paper", {}).replace(**changes)
+    (run / "config.json").write_text(saved.to_json())
+    if trained:
+        (run / "checkpoints" / "40").mkdir(parents=True)
+    return run, saved
+
+
+@pytest.mark.parametrize("extra,saved_text,given_text", [
+    (["--total-steps", "40960"], "total_steps=6016000", "total_steps=40960"),
+    (["--set", "lambda_a=7"], "lambda_a=", "lambda_a=7.0"),
+    (["--seeds", "300,400"], "seeds=(300, 400, 500)", "seeds=(300, 400)"),
+    (["--demos", "mine.hdf5"], "demos=None", "demos='mine.hdf5'"),
+    (["--budget", "quick"], "total_steps=6016000", "total_steps=902400"),
+    (["--method", "ma_gail"], "method='cogail'", "method='ma_gail'"),
+    (["--seeds", "300,400", "--set", "lr=1e-3"], "seeds=(300, 400, 500) and lr=0.0003", "seeds=(300, 400) and lr=0.001"),
+])
+def test_resume_with_other_settings_is_refused_naming_them(extra, saved_text, given_text, tmp_path, capsys):
+    """`cogail train --resume` with an option that changes the run's config (its fields, --set, --seeds, --demos, a
+    named budget's, the method) ends in one sentence naming each field as saved and as given and the fix, before
+    anything runs: the run is neither trained with the saved config as if the option had been taken, nor changed."""
+    run, _ = _saved_run(tmp_path)
+    before = (run / "config.json").read_bytes()
+    code, err = in_process(["train", "--task", "fetchq", "--run", str(run), "--resume", "--no-progress", *extra], capsys)
+    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert f"cannot resume: {run} was trained with {saved_text}" in err and f"not the given {given_text}" in err, err
+    assert "drop those options to continue the run as it was, or pass another --run" in err
+    assert (run / "config.json").read_bytes() == before and sorted(p.name for p in run.iterdir()) == [
+        "checkpoints", "config.json"]
+
+
+@pytest.mark.parametrize("args", [
+    [],  # the run's own task
+    ["--task", "fetchq"],
+    ["--task", "fetchq", "--budget", "paper", "--method", "cogail", "--seeds", "300,400,500"],  # as `make train`
+    ["--task", "fetchq", "--total-steps", "1234", "--eval", "--keep-policies", "all", "--no-progress"],
+    ["--config", "RUN/config.json"],
+])
+def test_resume_continues_a_run_made_under_other_defaults(args, tmp_path):
+    """Only what the user gives is compared with the run's config, never the task's current settings: a run made
+    when fetchq's defaults were others (here lr, num_envs and total_steps) is continued with its own config by a plain
+    --resume, by the options `make train` always gives when they equal the run's, and with options that change no
+    field (or equal the run's)."""
+    from cogail_jax.apps import runs
+
+    run, saved = _saved_run(tmp_path, lr=1e-3, num_envs=32, total_steps=1234)
+    a = cli.build_parser().parse_args(["train", "--run", str(run), "--resume",
+                                       *[x.replace("RUN", str(run)) for x in args]])
+    cfg, given = cli._config_and_given(a)
+    assert cfg != saved or "--config" in args  # today's defaults
+    assert runs.run_config(cfg, run, True, given) == (saved, False)  # the run's own, and its folder as it is
+
+
+def test_a_run_folder_that_never_trained_starts_afresh(tmp_path, capsys):
+    """A folder a command left without a checkpoint (it failed or was stopped before its first one) holds no run:
+    resumed with other options it starts afresh with those (a plain --resume keeps its config), its stale data
+    record dropped; a folder holding checkpoints is never started over, config.json or not."""
+    from cogail_jax.apps import runs
+
+    run, saved = _saved_run(tmp_path, trained=False, demos=str(tmp_path / "missing.hdf5"), train_varied=0)
+    (run / "data.json").write_text('{"sets": {"train": {"path": "missing.hdf5", "content_hash": "x"}}}')
+    a = cli.build_parser().parse_args(["train", "--task", "fetchq", "--run", str(run), "--resume", "--demos", "d.hdf5",
+                                       "--set", "train_varied=0"])
+    cfg, given = cli._config_and_given(a)
+    assert runs.run_config(saved, run, True, set()) == (saved, True)
+    assert runs.run_config(cfg, run, True, given) == (cfg, True)
+    assert "holds no checkpoint: starting it afresh with the options given" in capsys.readouterr().out
+    runs.write_run_dir(cfg, run)
+    assert json.loads((run / "config.json").read_text())["demos"] == "d.hdf5" and not (run / "data.json").exists()
+    (run / "policies" / "2").mkdir(parents=True)  # a run that trained: refused either way, nothing written
+    with pytest.raises(runs.RunError, match="cannot resume"):
+        runs.run_config(saved, run, True, {"demos"})
+    (run / "config.json").unlink()
+    with pytest.raises(runs.RunError, match="holds checkpoints but no config.json"):
+        runs.run_config(cfg, run, False)
 
 
 def in_process(args, capsys):
@@ -410,8 +494,7 @@ def _tiny_train_eval(run, train, held, validation) -> int:
 def test_train_with_eval_prepares_the_evaluation_while_training(demo_files, fetchq, tmp_path, capsys, monkeypatch):
     """`cogail train --eval`: the evaluation's sets and programs are made ready in the background during training
     (speed.json's eval_parts.prepared), the evaluation reports every checkpoint, and then the policies of the
-    checkpoints it reports no figure of are pruned (``--keep-policies reported``, the default). A validation file
-    that cannot be read ends the command in one sentence after training, whose checkpoints are kept."""
+    checkpoints it reports no figure of are pruned (``--keep-policies reported``, the default)."""
     from cogail_jax.apps import eval_runner
     from cogail_jax.data import io as data
     from cogail_jax.data import generate as demos
@@ -428,9 +511,43 @@ def test_train_with_eval_prepares_the_evaluation_while_training(demo_files, fetc
     assert rec["eval_parts"]["prepared"] > 0 and rec["phases"]["eval"] > 0
     assert json.loads((run / "results.json").read_text())["checkpoints"] == [2, 4]
     assert "selected on validation" in capsys.readouterr().out
-    bad = tmp_path / "bad.hdf5"
-    bad.write_text("not hdf5")
-    assert _tiny_train_eval(tmp_path / "run2", train, held, bad) == 2
-    out, err = capsys.readouterr()
-    assert "warning" not in out and err.strip().count("\n") == 0 and "could not be read as an HDF5 file" in err
-    assert (tmp_path / "run2" / "checkpoints").is_dir() and not (tmp_path / "run2" / "results.json").exists()
+
+
+@pytest.mark.parametrize("case,needle", [
+    ("no test split", "is missing: make the run's datasets first with `cogail data`"),
+    ("test file without init", "demo demo_0 has no 'init' dataset, which replay evaluation needs"),
+    ("validation file not HDF5", "could not be read as an HDF5 file"),
+    ("no varied humans", "is missing: make the run's datasets first with `cogail data`"),
+])
+def test_train_eval_checks_the_evaluation_files_before_training(case, needle, demo_files, tmp_path, capsys,
+                                                                monkeypatch):
+    """`cogail train --eval` checks its evaluation's files before it trains: a missing split or set of varied humans,
+    a test file without the start states replay needs or a file that is no HDF5 ends the command in one sentence
+    before any training, and leaves no run folder."""
+    import shutil
+
+    from cogail_jax.apps import train_loop
+
+    def trains(*args, **kw):
+        raise AssertionError("training started")
+
+    monkeypatch.setattr(train_loop, "_start_state", trains)
+    monkeypatch.setenv("COGAIL_DATA", str(tmp_path / "empty"))
+    train, held, val = demo_files
+    run = tmp_path / "run"
+    files = ["--heldout", str(held), "--validation", str(val)]
+    if case == "no test split":
+        files = ["--validation", str(val)]
+    elif case == "test file without init":
+        bad = shutil.copy(held, tmp_path / "noinit.hdf5")
+        with h5py.File(bad, "a") as f:
+            del f["data/demo_0/init"]
+        files = ["--heldout", str(bad), "--validation", str(val)]
+    elif case == "validation file not HDF5":
+        (tmp_path / "bad.hdf5").write_text("not hdf5")
+        files = ["--heldout", str(held), "--validation", str(tmp_path / "bad.hdf5")]
+    code, err = in_process(["train", "--task", "fetchq", "--run", str(run), "--demos", str(train), *files,
+                            "--set", "train_varied=0", "--eval", "--no-progress", "--no-coplay",
+                            *([] if case == "no varied humans" else ["--no-robustness"])], capsys)
+    assert code == 2 and needle in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert not run.exists()

@@ -98,7 +98,7 @@ def test_data_reads_a_training_file_of_people_before_compiling_for_its_shapes(tm
     def fake_ahead(cfg):  # what the compiling thread would read first
         seen.append(sets.split_path(cfg, sets.TRAIN).is_file())
         t = threading.Thread(target=lambda: None)
-        t.seconds, t.error = 0.0, None
+        t.seconds, t.compiling, t.error = 0.0, 0.0, None
         t.start()
         return t
 

@@ -132,6 +132,30 @@ def test_every_command_sets_up_the_cache_unless_told_not_to(extra, want, tmp_pat
     assert calls == [want, want]
 
 
+def test_a_compile_log_of_one_thread_leaves_out_the_compilations_beside_it():
+    """``CompileLog(this_thread=True)`` (`cogail data`'s datasets, while the training programs compile in a thread
+    beside them): only the compilations of the thread that made it, so that its seconds are part of that thread's
+    wall time; a plain log counts every thread's."""
+    import threading
+
+    import jax
+    import jax.numpy as jnp
+
+    def beside_probe(x):
+        return x * 11.0 - 2.0
+
+    def here_probe(x):
+        return x * 13.0 + 5.0
+
+    every, mine = timing.CompileLog(), timing.CompileLog(this_thread=True)
+    t = threading.Thread(target=lambda: jax.block_until_ready(jax.jit(beside_probe)(jnp.ones(3))))
+    t.start()
+    t.join()
+    jax.jit(here_probe)(jnp.ones(3))
+    assert {"beside_probe", "here_probe"} <= set(every.table())
+    assert "here_probe" in mine.table() and "beside_probe" not in mine.table()
+
+
 def test_compile_log_counts_each_program_once_and_merges_into_the_record():
     import jax
     import jax.numpy as jnp

@@ -149,7 +149,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "compilation and the device; `cogail bench --phases RUN` tabulates them.")
     _add_config_args(t)
     t.add_argument("--run", required=True, help="run directory")
-    t.add_argument("--resume", action="store_true", help="continue the run in --run from its last valid checkpoint")
+    t.add_argument("--resume", action="store_true", help="continue the run in --run from its last valid checkpoint, with its own config (an option "
+                        "that changes a field of it is refused: drop it, or pass another --run)")
     t.add_argument("--eval", action="store_true", help="evaluate every checkpoint when training ends")
     t.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
                    help="with --eval: also replay against varied humans (pace, pauses, path, noise, a change of "
@@ -357,6 +358,19 @@ def parse_field(name: str, value: str):
 
 def _config_from_args(a) -> "TrainConfig":  # noqa: F821
     """The run's config: the task's settings under ``--budget``, then ``--config``'s fields, then the flags."""
+    return _config_and_given(a)[0]
+
+
+def _config_and_given(a) -> tuple:
+    """The run's config (``_config_from_args``) and the names of the fields the user gave: those of ``--config``'s
+    file, of the flags given (``--task``, ``--method``, ``--seeds``, ``--total-steps``, ``--demos``, ...), of
+    ``--set``, and those a named budget other than paper sets (``--budget quick``: the fields of the task's
+    ``budgets["quick"]``). The task's own settings (``default_config()``, the paper budget) and the field defaults
+    are not given: they may change between versions, and a run made under others is still continued by ``cogail
+    train --run R --resume`` (or with the same --task/--budget/--method/--seeds, as ``make train`` gives them).
+    ``cogail train --resume`` compares the given fields with the run's saved config (``runs.run_config``)."""
+    from cogail_envs import UnknownTaskError, get_task
+
     from ..algo.config import REMOVED, ConfigError, TrainConfig, check_value, resolve, unknown_fields
 
     fields = {}
@@ -388,30 +402,41 @@ def _config_from_args(a) -> "TrainConfig":  # noqa: F821
             raise ConfigError(f"--set needs FIELD=VALUE, got {item!r}")
         k, v = item.split("=", 1)
         fields[k] = parse_field(k.strip(), v)
+    given = set(fields) - set(REMOVED)
     task = fields.pop("task", None) or ""
     saved = Path(a.run) / "config.json" if getattr(a, "resume", False) and getattr(a, "run", None) else None
     if not task and saved is not None and saved.exists():  # `cogail train --run R --resume`: the run's own task
         saved_cfg = TrainConfig.load(saved)
         task = saved_cfg.task
         fields.setdefault("method", saved_cfg.method)
-    return resolve(task, a.budget, fields)
+    cfg = resolve(task, a.budget, fields)
+    if a.budget != "paper":  # (resolve has checked that the task has it)
+        try:
+            given |= set(get_task(cfg.task).budgets.get(a.budget, {})) & set(TrainConfig.__dataclass_fields__)
+        except UnknownTaskError:
+            pass
+    return cfg, given
 
 
 def _compile_ahead(cfg) -> threading.Thread:
     """A thread, started, that compiles ``cfg``'s first training programs (``runs.compile_ahead``); its
-    ``seconds`` and ``error`` (None, or what went wrong: it only costs the training command the time) once joined."""
+    ``seconds``, ``compiling`` (of them, its own compilations' seconds) and ``error`` (None, or what went wrong: it
+    only costs the training command the time) once joined."""
     from .runs import compile_ahead
 
     def work():
-        t0 = time.perf_counter()
+        from ..runtime.timing import CompileLog
+
+        t0, log = time.perf_counter(), CompileLog(this_thread=True)
         try:
             compile_ahead(cfg)
         except Exception as e:  # noqa: BLE001
             t.error = f"{type(e).__name__}: {e}"
         t.seconds = time.perf_counter() - t0
+        t.compiling = sum(r["backend"] + r["trace"] for r in log.table().values())
 
     t = threading.Thread(target=work, name="compile-ahead", daemon=True)
-    t.seconds, t.error = 0.0, None
+    t.seconds, t.compiling, t.error = 0.0, 0.0, None
     t.start()
     return t
 
@@ -498,7 +523,7 @@ def _dispatch(a) -> int:
         from ..data.io import data_dir
 
         output_dir(data_dir(), "the data folder", "set COGAIL_DATA to a folder you can write")
-        t0, compiles = time.perf_counter(), CompileLog()
+        t0, compiles = time.perf_counter(), CompileLog(this_thread=True)  # the datasets' own, not the programs'
         ahead = None
         if a.programs and program_dir() is not None:
             from ..data import sets
@@ -509,7 +534,9 @@ def _dispatch(a) -> int:
         for name, path in make_datasets(cfg, robustness=a.robustness).items():
             print(f"{name}: {path}")
         xla = sum(r["backend"] + r["trace"] for r in compiles.table().values())
-        print(f"datasets ready in {time.perf_counter() - t0:.1f} s ({xla:.1f} s of it compiling)", flush=True)
+        print(f"datasets ready in {time.perf_counter() - t0:.1f} s ({xla:.1f} s of it compiling)"
+              + (" while the training programs compile beside them" if ahead is not None and ahead.is_alive() else ""),
+              flush=True)
         if a.robustness:  # the evaluation's BC models of people (the field's protocol), while the programs compile
             from ..eval import field
 
@@ -519,17 +546,18 @@ def _dispatch(a) -> int:
                       flush=True)
         if ahead is not None:
             ahead.join()
-            print(f"training programs compiled ahead in {ahead.seconds:.1f} s" if ahead.error is None else
+            print(f"training programs compiled ahead in {ahead.seconds:.1f} s ({ahead.compiling:.1f} s of it "
+                  "compiling)" if ahead.error is None else
                   f"warning: compiling the training programs ahead failed ({ahead.error}); `cogail train` compiles "
                   "them itself", flush=True)
         return 0
     if a.command == "train":
-        from .eval_runner import EvalPrep, eval_run, prune_policies, was_pruned
+        from .eval_runner import EvalPrep, check_inputs, eval_run, prune_policies, was_pruned
         from .train_loop import train_run
 
         from ..runtime import distributed
 
-        cfg = _config_from_args(a)
+        cfg, given = _config_and_given(a)
         evaluates = a.eval and distributed.primary()  # of several processes, process 0 evaluates
         # a finished run resumed (e.g. `make train` again) whose evaluation pruned its policies: its results stand
         evaluated = evaluates and a.resume and was_pruned(a.run)
@@ -539,7 +567,9 @@ def _dispatch(a) -> int:
                         coplay_episodes=a.coplay_episodes) if evaluates else None  # made ready while training runs
         run = train_run(cfg, a.run, resume=a.resume, progress=not a.no_progress, devices=a.devices,
                         keep=kept if evaluates else None, on_compiled=prep.start if prep else None,
-                        keep_full=a.keep_full)
+                        keep_full=a.keep_full, given=given,
+                        # the evaluation's files too, before training (and before the run folder is written)
+                        check=(lambda s: check_inputs(s, a.robustness)) if evaluates else None)
         if not distributed.primary():
             print(f"process {jax_process_index()}: trained; process 0 writes {run}", flush=True)
             distributed.barrier("done")  # until process 0 has written everything

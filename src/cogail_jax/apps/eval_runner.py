@@ -465,6 +465,20 @@ def _extra_episodes(s: Setup, sets: dict[str, str]) -> dict[str, dict]:
             for name, path in sets.items()}
 
 
+def check_inputs(s: Setup, robustness: bool = True) -> None:
+    """The evaluation's own files of ``s``'s run (``s``: its set-up without them, ``build(..., need_heldout=False)``),
+    checked before ``cogail train --eval`` trains: the test and validation splits (there, and holding what replay
+    reads, ``init`` included) and with ``robustness`` the varied humans (there, and so too). A missing or malformed
+    one raises the error the evaluation would raise after training. Cheap: the files' layouts, not their arrays
+    (``io.check_demos``)."""
+    env = s.task_env or s.env  # where the generated sets are found; their episodes are read in ``s.env``
+    for split in (data_sets.TEST, data_sets.VALIDATION):
+        data.check_demos(data_sets.split_path(s.cfg, split, env=env, verbose=False), s.env, require_init=True)
+    if robustness:
+        for path in data_sets.robustness_paths(s.cfg, env=env, verbose=False).values():
+            data.check_demos(path, s.env, require_init=True)
+
+
 def _eval_setup(run_dir: Path, sets: dict[str, str], robustness: bool) -> tuple[Setup, dict[str, str]]:
     """The run's set-up with the test and validation splits, and the extra sets to replay: ``sets``, those of an
     earlier evaluation whose files still exist, and with ``robustness`` the varied humans (``cogail data`` makes

@@ -39,6 +39,7 @@ class Setup:
     train_metrics: dict | None = None
     validation: dict | None = None  # validation episodes (rollouts.heldout_arrays), for checkpoint selection
     files: dict | None = None  # split name (test, validation) -> the demonstration file it was read from
+    task_env: object = None  # the task's env at its own time limit (its generated datasets'; ``env`` may differ)
 
 
 def effective_updates_per_call(cfg: TrainConfig) -> int:
@@ -85,7 +86,7 @@ def build(cfg: TrainConfig, need_heldout: bool = True, need_validation: bool | N
     init, chunk, nets = train.make_train_fns(cfg, env, train.fit_normalizer(expert, cfg.obs_std_floor,
                                                                                train.unread_dims(cfg, env), cfg.motion))
     return Setup(cfg, env, expert, heldout, init, chunk, nets, train_metrics, validation,
-                 {k: str(v) for k, v in files.items()})
+                 {k: str(v) for k, v in files.items()}, task_env)
 
 
 def expert_capacity(cfg: TrainConfig, task_env) -> int:
@@ -157,23 +158,76 @@ def run_metadata() -> dict:
             "xla_gpu_deterministic_ops": deterministic_ops(), "xla_flags": os.environ.get("XLA_FLAGS", "")}
 
 
-def prepare_run_dir(cfg: TrainConfig, run_dir: Path, resume: bool) -> TrainConfig:
+def holds_checkpoints(run_dir: Path) -> bool:
+    """Whether ``run_dir`` holds anything of a checkpoint: a training state, a delivered policy, or one set aside
+    as damaged (anything at all in those folders, a checkpoint half written included). A folder that holds none
+    never trained: its config.json is only what the command that made it was given."""
+    return any((run_dir / d).is_dir() and any((run_dir / d).iterdir())
+               for d in (ckpt.FULL, ckpt.POLICIES, "corrupt_checkpoints"))
+
+
+PATH_FIELDS = ("demos", "heldout", "validation")
+
+
+def _same(name: str, a, b) -> bool:
+    if name in PATH_FIELDS and a and b:  # the same file, however written
+        return a == b or os.path.abspath(a) == os.path.abspath(b)
+    return a == b
+
+
+def differences(saved: TrainConfig, cfg: TrainConfig, given=None) -> list[str]:
+    """The fields among ``given`` (names; None: every field) whose values differ between the run's ``saved`` config
+    and ``cfg``, in the config's order."""
+    import dataclasses
+
+    names = [f.name for f in dataclasses.fields(TrainConfig)]
+    given = set(names if given is None else given)
+    return [n for n in names if n in given and not _same(n, getattr(saved, n), getattr(cfg, n))]
+
+
+def run_config(cfg: TrainConfig, run_dir: Path, resume: bool, given=None) -> tuple[TrainConfig, bool]:
+    """The config a run in ``run_dir`` trains with, and whether the run folder is (re)written (a run that starts;
+    False: a run continued as it was). Nothing is written here.
+
+    Without ``resume``: ``cfg``; a folder that holds a checkpoint (``holds_checkpoints``) is refused.
+    With ``resume``: the run's saved config.json, continued as it was. ``given``: the names of the fields the user
+    gave (``cogail train``'s options, its --config file's and --set's fields, and a named budget's; never the
+    task's defaults, which may have changed since the run was made); None (an API caller passing a whole config):
+    every field. Where a given field differs from the saved run's, a run that has trained is refused with the
+    fields named, and a folder that never trained (a command that failed or was stopped before its first
+    checkpoint) starts afresh with ``cfg``: nothing of it is lost, and the options given now apply."""
     cfg_path = run_dir / "config.json"
+    trained = holds_checkpoints(run_dir)
     if resume:
         if not cfg_path.exists():
             raise RunError(f"cannot resume: {run_dir} has no config.json; start a new run without --resume")
         saved = TrainConfig.load(cfg_path)
-        if saved.task != cfg.task or saved.method != cfg.method:
-            raise RunError(f"cannot resume: {run_dir} is a {saved.method} run on {saved.task}, "
-                           f"not {cfg.method} on {cfg.task}; pass the same --task/--method or another --run")
-        return saved
-    if cfg_path.exists() and ckpt.steps(ckpt.manager(run_dir)):
-        raise RunError(f"{run_dir} already holds a run: pass --resume to continue it or choose another --run")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    cfg_path.write_text(cfg.to_json())
-    (run_dir / "run_info.json").write_text(json.dumps(run_metadata(), indent=2))
-    return cfg
+        diff = differences(saved, cfg, given)
+        if not diff:
+            return saved, not trained
+        if trained:
+            def show(c):
+                return " and ".join(f"{n}={getattr(c, n)!r}" for n in diff)
 
+            raise RunError(f"cannot resume: {run_dir} was trained with {show(saved)}, not the given {show(cfg)}: "
+                           f"drop those options to continue the run as it was, or pass another --run to train a new one")
+        print(f"{run_dir} holds no checkpoint: starting it afresh with the options given", flush=True)
+        return cfg, True
+    if trained:
+        if cfg_path.exists():
+            raise RunError(f"{run_dir} already holds a run: pass --resume to continue it or choose another --run")
+        raise RunError(f"{run_dir} holds checkpoints but no config.json: put back the config.json it was trained "
+                       f"with and pass --resume, or choose another --run")
+    return cfg, True
+
+
+def write_run_dir(cfg: TrainConfig, run_dir: Path) -> None:
+    """Write a starting run's folder: config.json, run_info.json, and no data record of an earlier start that never
+    trained (RUN/data.json; ``run_config`` has checked that the folder holds no checkpoint)."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / manifest.NAME).unlink(missing_ok=True)
+    (run_dir / "config.json").write_text(cfg.to_json())
+    (run_dir / "run_info.json").write_text(json.dumps(run_metadata(), indent=2))
 
 
 EVAL_PARAMS = ("actor", "psi")  # what evaluating a checkpoint reads of its parameters

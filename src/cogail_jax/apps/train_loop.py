@@ -17,7 +17,7 @@ from ..runtime import distributed
 from ..data import manifest
 from ..runtime import timing
 from ..algo.config import TrainConfig
-from .runs import RunError, Setup, _eval_tree, build, eval_params, prepare_run_dir, total_updates
+from .runs import RunError, Setup, _eval_tree, build, eval_params, run_config, total_updates, write_run_dir
 
 
 def _log_scalars(writers, metrics, update0, steps_per_update):
@@ -289,34 +289,50 @@ KEEP_FULL = 1  # full training states a run keeps by default: the newest, which 
 
 def train_run(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True,
               stop_after: int | None = None, devices: str | int | None = None, keep: dict | None = None,
-              on_compiled=None, keep_full: int | None = KEEP_FULL) -> Path:
+              on_compiled=None, keep_full: int | None = KEEP_FULL, given=None, check=None) -> Path:
     """Train (or resume) a run; returns the run directory. Every checkpoint writes the delivered policy to
     RUN/policies/ (what evaluation, play and video read) and the whole training state to RUN/checkpoints/, of
     which the ``keep_full`` newest are kept (resume starts from the newest; None keeps every one). ``stop_after``
     stops early after that many updates (tests use it to simulate an interrupted run). Records the time of each phase in RUN/speed.json
     (``timing``; a resumed run adds to it). ``keep``: a dict that receives each checkpoint's ``eval_params``
-    as it is written, for ``eval_run(..., memory=keep)``. ``on_compiled``: see ``_train_loop``."""
+    as it is written, for ``eval_run(..., memory=keep)``. ``on_compiled``: see ``_train_loop``. ``given``: the
+    fields the user gave, compared on ``resume`` with the run's own (``runs.run_config``). ``check``: called with
+    the run's ``Setup`` once its training data are read, before the run folder is written (e.g. the evaluation's
+    inputs: ``eval_runner.check_inputs``); the data are read, and ``check`` runs, before anything is written, so that
+    a run whose inputs are wrong leaves no folder behind."""
+    if keep_full is not None and keep_full < 1:  # before anything is read or written
+        raise RunError(f"--keep-full {keep_full}: a run keeps at least its newest training state (resume needs it); "
+                       "pass 1 or more, or all")
     clock, compiles = timing.Phases(), timing.CompileLog()
     clock.take_process_start()  # the command's imports before this call count as "start"
     run_dir = Path(run_dir)
     writes = distributed.primary()  # of several processes, process 0 alone writes the run folder
     if distributed.processes() > 1 and devices is None:
         devices = "all"  # every process's devices: one mesh
-    with clock("start"):
-        if writes:
-            cfg = prepare_run_dir(cfg, run_dir, resume)
+    s = None
+    if writes:
+        with clock("start"):
+            cfg, starts = run_config(cfg, run_dir, resume, given)
+            resume = resume and not starts  # a folder that never trained starts afresh
             from ..runtime.devices import cpu_warning, describe_devices  # a CPU warning for paper-sized MJX runs
             print("\n".join([describe_devices(), *cpu_warning(cfg)]), flush=True)
+        with clock("demos"):  # found, not made (`cogail data` makes them): read before the run folder is written
+            s = build(cfg, need_heldout=False)
+            if check is not None:
+                check(s)
+        with clock("start"):
+            if starts:
+                write_run_dir(cfg, run_dir)
+    with clock("start"):
         distributed.barrier("prepared")
         if not writes:  # the config process 0 wrote (the resumed run's own on --resume)
             cfg = TrainConfig.load(run_dir / "config.json")
-    with clock("demos"):  # found, not made (`cogail data` makes them), and recorded in RUN/data.json
-        s = build(cfg, need_heldout=False, run_dir=run_dir if writes else None)
-        if writes:
+    with clock("demos"):
+        if writes:  # recorded in RUN/data.json (and checked against it on resume)
+            manifest.check(run_dir, s.files, s.env.version)
             manifest.record_expert(run_dir, s.expert)
-    if keep_full is not None and keep_full < 1:
-        raise RunError(f"--keep-full {keep_full}: a run keeps at least its newest training state (resume needs it); "
-                       "pass 1 or more, or all")
+        else:
+            s = build(cfg, need_heldout=False)
     mgr = ckpt.manager(run_dir, keep=keep_full)
     parts: dict = {}
     state, start, called = _start_state(s, mgr, run_dir, resume, devices, clock, on_compiled, parts)

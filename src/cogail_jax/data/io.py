@@ -166,8 +166,16 @@ def _demo_key(name: str) -> tuple[int, str]:
     return (int(tail), name) if tail.isdigit() else (1 << 30, name)
 
 
-def load_demos(path: str | os.PathLike, env, require_init: bool = False) -> Demos:
-    """Read and validate a demonstration file against ``env``; raise ``DatasetError`` on any problem."""
+def check_demos(path: str | os.PathLike, env, require_init: bool = False) -> None:
+    """``load_demos``'s checks of a file's layout, without reading its arrays: what it holds (task, demos, their
+    datasets' shapes, strategies, ``init`` where ``require_init``), so that a command can find a bad file before it
+    works, in milliseconds; its values (NaN, infinities) are checked where it is read."""
+    load_demos(path, env, require_init, read=False)
+
+
+def load_demos(path: str | os.PathLike, env, require_init: bool = False, read: bool = True) -> Demos | None:
+    """Read and validate a demonstration file against ``env``; raise ``DatasetError`` on any problem. ``read=False``:
+    ``check_demos``."""
     import h5py
 
     path = Path(path)
@@ -212,13 +220,16 @@ def load_demos(path: str | os.PathLike, env, require_init: bool = False) -> Demo
                 a = g[key]
                 if not isinstance(a, h5py.Dataset) or a.dtype.kind not in "fiu":
                     raise DatasetError(f"{at}: '{key}' is not a numeric array")
-                a = np.asarray(a[()], np.float32)
-                if a.ndim != 2 or a.shape[1] != dim:
-                    raise DatasetError(f"{at}: '{key}' has shape {a.shape}, expected (T, {dim}) for task {env.name}")
+                shape = tuple(a.shape)
+                if len(shape) != 2 or shape[1] != dim:
+                    raise DatasetError(f"{at}: '{key}' has shape {shape}, expected (T, {dim}) for task {env.name}")
                 if T is None:
-                    T = a.shape[0]
-                elif a.shape[0] != T:
-                    raise DatasetError(f"{at}: '{key}' has {a.shape[0]} steps but 'obs' has {T}")
+                    T = shape[0]
+                elif shape[0] != T:
+                    raise DatasetError(f"{at}: '{key}' has {shape[0]} steps but 'obs' has {T}")
+                if not read:
+                    continue
+                a = np.asarray(a[()], np.float32)
                 if not np.all(np.isfinite(a)):
                     raise DatasetError(f"{at}: '{key}' contains NaN or infinite values")
                 arrays[key].append(a)
@@ -243,6 +254,8 @@ def load_demos(path: str | os.PathLike, env, require_init: bool = False) -> Demo
                 inits.append(init)
             elif require_init:
                 raise DatasetError(f"{at} has no 'init' dataset, which replay evaluation needs to restart the episode")
+    if not read:
+        return None
     N, Tmax = len(names), max(lengths)
 
     def pad(xs, dim):

@@ -56,7 +56,9 @@ class CompileLog:
     """Every compilation of this process from the moment it is made, by program name, from JAX's monitoring events:
     ``backend`` (XLA's compilation, or the persistent cache's load) and ``trace`` (tracing and lowering to MLIR).
     ``table()``: {name: {"count", "backend", "trace"}} (seconds), largest first. One listener serves every log (a
-    log only reads the events recorded since it was made)."""
+    log only reads the events recorded since it was made). ``this_thread``: only the compilations of the thread that
+    made the log (not those of threads working beside it, e.g. ``cogail data``'s training programs compiled ahead),
+    so that the log's seconds are part of that thread's wall time."""
 
     _events: list = []
     _registered = False
@@ -64,7 +66,8 @@ class CompileLog:
     BACKEND = "/jax/core/compile/backend_compile_duration"
     TRACE = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration")
 
-    def __init__(self) -> None:
+    def __init__(self, this_thread: bool = False) -> None:
+        self._thread = threading.get_ident() if this_thread else None
         cls = type(self)
         with cls._lock:
             if not cls._registered:
@@ -80,11 +83,13 @@ class CompileLog:
             name = str(kw.get("fun_name", "?"))
             if name.startswith("jit(") and name.endswith(")"):  # one row per program: its trace and compilation
                 name = name[4:-1]
-            cls._events.append((event, name, float(seconds)))
+            cls._events.append((event, name, float(seconds), threading.get_ident()))
 
     def table(self) -> dict:
         out: dict = {}
-        for event, name, secs in type(self)._events[self._start:]:
+        for event, name, secs, thread in type(self)._events[self._start:]:
+            if self._thread is not None and thread != self._thread:
+                continue
             row = out.setdefault(name, {"count": 0, "backend": 0.0, "trace": 0.0})
             if event == self.BACKEND:
                 row["count"] += 1

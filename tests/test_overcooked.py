@@ -278,3 +278,18 @@ def test_each_recorded_window_in_both_seats(env):
         np.testing.assert_array_equal(m[f"{job}_h"][b], m[f"{job}_r"][a])
     mirror = {0: 0, 1: 2, 2: 1, 3: 3, 4: 5, 5: 4}  # who cooks and who serves, swapped
     assert [mirror[int(x)] for x in r["strategy"][a]] == r["strategy"][b].tolist()
+
+
+@needs_trials
+def test_the_normaliser_keeps_planes_the_people_never_lit_small(env):
+    """The task's observation floor: a 0/1 plane that no step of the people's trials lit (a start cell and facing
+    they never had) reads about 1 when a start lights it, not 1 / 0.01 (the trainer's own default floor)."""
+    r = tr.recorded(env, "validation")
+    steps = np.arange(r["obs"].shape[1])[None] < r["length"][:, None]
+    obs = r["obs"][steps]
+    floor = get_task("overcooked").config()["obs_std_floor"]
+    mean, std = obs.mean(0), np.maximum(obs.std(0), floor)
+    starts = np.asarray(jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 64)).obs)
+    unseen = (obs.std(0) == 0) & np.any(starts != obs[0], axis=0)  # constant in the trials, not at some start
+    assert unseen.any()  # the starts light planes the people never lit
+    assert np.abs((starts - mean) / std).max() <= 2.0

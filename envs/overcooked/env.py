@@ -130,7 +130,8 @@ class Overcooked(CollabEnv):
     def step(self, state: State, action: jax.Array) -> State:
         ps, seat = state.pipeline_state, state.info["seat"]
         halves = jnp.asarray(action).reshape(2, NUM_ACTIONS)
-        hr = jnp.where(jnp.any(halves != 0, axis=-1), jnp.argmax(halves, axis=-1), STAY).astype(jnp.int32)  # human, robot
+        hr = jnp.where(jnp.any(halves != 0, axis=-1), jnp.argmax(halves, axis=-1), STAY)  # human, robot
+        hr = hr.astype(jnp.int32)
         acts = jnp.where(seat == 0, hr, hr[::-1])  # by player
         obs, nps, rewards, _, _ = self._game.step_env(jax.random.PRNGKey(0), ps, {"agent_0": acts[0],
                                                                                   "agent_1": acts[1]})

@@ -117,7 +117,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser("demos", help="generate scripted human-human demonstrations into an HDF5 file",
                        description="Generate scripted human-human demonstrations (one jitted, vmapped call) "
-                                   "and write them in the project's HDF5 schema (docs/tasks.md, \"Demonstration files\").")
+                                   "and write them in the project's HDF5 schema (docs/tasks.md, "
+                                   "\"Demonstration files\").")
     d.add_argument("--task", required=True, help=_task_help())
     d.add_argument("--num", type=positive, default=60, help="number of demonstrations (default 60)")
     d.add_argument("--mix", default="uniform", help=_mix_help() + ", or comma-separated weights")
@@ -149,7 +150,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "compilation and the device; `cogail bench --phases RUN` tabulates them.")
     _add_config_args(t)
     t.add_argument("--run", required=True, help="run directory")
-    t.add_argument("--resume", action="store_true", help="continue the run in --run from its last valid checkpoint, with its own config (an option "
+    t.add_argument("--resume", action="store_true",
+                   help="continue the run in --run from its last valid checkpoint, with its own config (an option "
                         "that changes a field of it is refused: drop it, or pass another --run)")
     t.add_argument("--eval", action="store_true", help="evaluate every checkpoint when training ends")
     t.add_argument("--robustness", action=argparse.BooleanOptionalAction, default=True,
@@ -296,7 +298,8 @@ def build_parser() -> argparse.ArgumentParser:
                             "  cogail import --task TASK --in my_robomimic.hdf5 --out data/mine.hdf5 --map my_map.json"))
     im.add_argument("--task", required=True, help=_task_help())
     im.add_argument("--in", dest="src", required=True, metavar="FILE", help="input .hdf5/.h5 or .npz file")
-    im.add_argument("--out", required=True, metavar="FILE.hdf5", help="output file in the project's schema, a new file (one that exists is kept)")
+    im.add_argument("--out", required=True, metavar="FILE.hdf5",
+                    help="output file in the project's schema, a new file (one that exists is kept)")
     im.add_argument("--map", default=None, metavar="MAPFILE", help='JSON key mapping, e.g. {"obs": "states"}')
     im.add_argument("--key", action="append", default=[], metavar="FIELD=SOURCE",
                     help="where a field is in the input, e.g. --key obs=observations (repeatable; wins over --map)")

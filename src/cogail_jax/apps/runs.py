@@ -210,7 +210,8 @@ def run_config(cfg: TrainConfig, run_dir: Path, resume: bool, given=None) -> tup
                 return " and ".join(f"{n}={getattr(c, n)!r}" for n in diff)
 
             raise RunError(f"cannot resume: {run_dir} was trained with {show(saved)}, not the given {show(cfg)}: "
-                           f"drop those options to continue the run as it was, or pass another --run to train a new one")
+                           f"drop those options to continue the run as it was, or pass another --run to train a new "
+                           f"one")
         print(f"{run_dir} holds no checkpoint: starting it afresh with the options given", flush=True)
         return cfg, True
     if trained:

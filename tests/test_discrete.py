@@ -64,9 +64,13 @@ def test_demonstrations_hold_one_hot_actions(line):
 
 
 @pytest.mark.parametrize("method", METHODS)
-def test_preset_trains_on_a_discrete_task(method, line, line_expert, tiny_cfg):
+def test_preset_trains_on_a_discrete_task(method, line, line_expert, tiny_cfg, monkeypatch):
     env, _ = line
     path, expert = line_expert
+    fitted = []  # (discrete?) of every fitting error the trainer traces: all cross-entropies on this task
+    agent_error, joint_error = actions.agent_error, actions.joint_error
+    monkeypatch.setattr(actions, "agent_error", lambda d, *a: fitted.append(bool(d)) or agent_error(d, *a))
+    monkeypatch.setattr(actions, "joint_error", lambda s, *a: fitted.append(not s.continuous) or joint_error(s, *a))
     cfg = tiny_cfg.replace(task="line_meet", method=method, demos=str(path), seeds=(1,), updates_per_call=1,
                            num_envs=4, unroll_length=14, bc_steps=2, entropy_coef=0.01)
     init, chunk, _ = train.make_train_fns(cfg, env, train.fit_normalizer(expert))
@@ -79,6 +83,7 @@ def test_preset_trains_on_a_discrete_task(method, line, line_expert, tiny_cfg):
     for k in ("loss_a", "loss_r", "bc_loss"):
         if k in m:
             assert 0 <= float(np.mean(m[k])) < 3 * np.log(3), (k, m[k])
+    assert fitted and all(fitted), fitted  # none fitted as a squared error of the logits
     if "entropy" in m:  # two categorical heads of 3 choices each
         assert 0 < float(np.mean(m["entropy"])) <= 2 * np.log(3) + 1e-5
     if method != "bc_single":

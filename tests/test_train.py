@@ -209,6 +209,10 @@ def test_resume_is_exact(tiny_cfg, tmp_path):
     windows = tblog.episode_windows(res["checkpoints"], -(-300 // cfg.unroll_length))  # fetchq: 300 steps
     assert ts["checkpoints"] == windows and all(r is None or 0 <= r <= 1 for r in ts["mean"])
     assert tblog.training_success(part, cfg.seeds, cfg.steps_per_update, windows) == ts
+    for seed in cfg.seeds:  # the resumed run's TensorBoard logs hold every update once, as the uninterrupted run's
+        tag = ("train/disc_loss",)
+        logged = [tblog.read_scalars(r / "tb" / f"seed_{seed}", tag)[tag[0]] for r in (full, part)]
+        assert len(logged[0]) == runs.total_updates(cfg) and logged[0] == logged[1], logged
 
     # RUN/speed.json: every phase of the training and of the evaluation, in seconds
     speed = json.loads((full / "speed.json").read_text())

@@ -182,3 +182,5 @@ def test_run_without_policies_is_evaluated_from_its_training_states(cfg, two_dev
     assert res["checkpoints"] == old["checkpoints"] == [2]
     for key in ("replay_success", "validation_replay_success", "interpolation_success"):
         assert old["curves"][key] == res["curves"][key], key
+    # (an untrained run replays nothing: psi's codes of the demonstrations tell the parameters read apart)
+    np.testing.assert_allclose(old["latent_map"]["codes"], res["latent_map"]["codes"], rtol=1e-5, atol=1e-6)

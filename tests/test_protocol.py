@@ -233,7 +233,8 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     res2 = json.loads((run / "results.json").read_text())
     assert set(res2["extra_sets"]) == {"again", "val-again"}
     # (a set added later is counted in float64, the evaluation's sets in float32: the same figure to 1e-7)
-    assert res2["extra_sets"]["val-again"]["selected"]["per_seed"] == pytest.approx(sel["validation_replay"]["per_seed"])
+    assert res2["extra_sets"]["val-again"]["selected"]["per_seed"] == pytest.approx(
+        sel["validation_replay"]["per_seed"])
     assert "val-again" in (run / "results.md").read_text()
     monkeypatch.undo()
     # checkpoints two at a time in one device program (vmapped over stacked parameters; the second group padded):
@@ -252,7 +253,8 @@ def test_eval_run_reports_validation_test_and_extra_sets(tiny_cfg, demo_files, f
     # ... stacked into one replay batch (4 and 6 episodes, padded to the episode limit): each set's figures are
     # still those of its own episodes
     assert again["extra_sets"]["again"]["selected"]["per_seed"] == sel["replay"]["per_seed"]
-    assert again["extra_sets"]["val-again"]["selected"]["per_seed"] == pytest.approx(sel["validation_replay"]["per_seed"])
+    assert again["extra_sets"]["val-again"]["selected"]["per_seed"] == pytest.approx(
+        sel["validation_replay"]["per_seed"])
     # the checkpoints kept in memory by the training loop, all in one program: no checkpoint read from disk, and
     # the same results as reading each one back
     monkeypatch.setattr(runs.ckpt, "restore", lambda *a, **k: pytest.fail("a checkpoint was read from disk"))
